@@ -1,0 +1,41 @@
+# Two commands for a new user: `make demo` and `make test`. Both (re)create .venv and
+# install everything from PyPI by name when pyproject.toml changed.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: setup demo test lint format bench eval clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: setup
+	$(BIN)/mimic up --demo
+
+test: setup
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: setup
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+bench: setup
+	$(BIN)/mimic bench solvers --json runs/bench_solvers.json
+	$(BIN)/mimic bench pipeline --json runs/bench_pipeline.json
+
+eval: setup
+	$(BIN)/mimic eval ../shared/data/mocap/bvh/*.bvh --json runs/eval.json --plots runs/eval
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache

@@ -1,0 +1,171 @@
+"""Watch a running stack from the bus and summarise it.
+
+The summary answers what a user asks after a run: did every frame come
+through each service, what was dropped or rejected, how long did a mocap frame
+take to show up in the simulated robot, and how close did the robot get to
+the retargeted wrist and elbow targets.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+
+import numpy as np
+import zenoh
+
+from shared.keys import Keys
+from shared.messages import MessageError, RobotState, ServiceStatus, TaskTargets
+
+
+def _pct(values: list[float], q: float) -> float | None:
+    return float(np.percentile(values, q)) if values else None
+
+
+class StackMonitor:
+    """Pure accounting of what the bus carried (feed it decoded messages).
+
+    Latency is measured from ``hdr.t0`` (frame entered the bus) to the arrival
+    of the first RobotState that carries that frame's ``seq``, i.e. the frame
+    has been retargeted, solved and applied in the simulation.
+    """
+
+    def __init__(self, max_pending: int = 4096):
+        self.status: dict[tuple[str, str], ServiceStatus] = {}
+        self.frames_seen = 0
+        self._targets: OrderedDict[int, TaskTargets] = OrderedDict()
+        self._max_pending = max_pending
+        self._last_state_seq = -1
+        self.latency_ms: list[float] = []
+        self.wrist_err: list[float] = []
+        self.elbow_err: list[float] = []
+        self.max_joint_excess = 0.0
+        self.states_seen = 0
+
+    def on_status(self, st: ServiceStatus) -> None:
+        self.status[(st.service, st.instance)] = st
+
+    def on_frame(self) -> None:
+        self.frames_seen += 1
+
+    def on_targets(self, tt: TaskTargets) -> None:
+        self._targets[tt.hdr.seq] = tt
+        while len(self._targets) > self._max_pending:
+            self._targets.popitem(last=False)
+
+    def on_state(
+        self, st: RobotState, now_ns: int, lower: np.ndarray | None = None, upper: np.ndarray | None = None
+    ) -> None:
+        self.states_seen += 1
+        if lower is not None and upper is not None:
+            excess = float(np.max(np.maximum(st.q - upper, lower - st.q)))
+            self.max_joint_excess = max(self.max_joint_excess, excess)
+        if st.hdr.seq <= self._last_state_seq:
+            return
+        self._last_state_seq = st.hdr.seq
+        self.latency_ms.append((now_ns - st.hdr.t0) / 1e6)
+        tt = self._targets.get(st.hdr.seq)
+        if tt is None:
+            return
+        for name, pose in st.frames.items():
+            tgt = tt.targets.get(name)
+            if tgt is None or not tgt.valid:
+                continue
+            err = float(np.linalg.norm(pose.p - tgt.p))
+            (self.wrist_err if name.endswith("wrist") else self.elbow_err).append(err)
+
+    def summary(self) -> dict:
+        services = {}
+        for (svc, inst), st in sorted(self.status.items()):
+            c = st.counts
+            services[f"{svc}/{inst}"] = {
+                "in": c.get("received", 0),
+                "out": c.get("published", 0),
+                "dropped": c.get("dropped", 0),
+                "rejected": c.get("rejected", 0),
+                "state": st.state,
+                "last_error": st.last_error,
+            }
+
+        def stats(v: list[float]) -> dict:
+            return {"mean": float(np.mean(v)) * 100 if v else None, "max": float(np.max(v)) * 100 if v else None}
+
+        return {
+            "frames_published": self.frames_seen,
+            "robot_states": self.states_seen,
+            "services": services,
+            "latency_ms": {
+                "p50": _pct(self.latency_ms, 50),
+                "p99": _pct(self.latency_ms, 99),
+                "max": max(self.latency_ms) if self.latency_ms else None,
+                "samples": len(self.latency_ms),
+            },
+            "wrist_err_cm": stats(self.wrist_err),
+            "elbow_err_cm": stats(self.elbow_err),
+            "max_joint_limit_excess_rad": self.max_joint_excess,
+        }
+
+
+class BusMonitor:
+    """Feeds a :class:`StackMonitor` from a Zenoh session; tracks liveliness."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, lower=None, upper=None):
+        self.mon = StackMonitor()
+        self.keys = keys
+        self.alive: set[tuple[str, str]] = set()
+        self.lost: list[tuple[str, str]] = []
+        self._lock = threading.Lock()
+        self._lower, self._upper = lower, upper
+        self._subs = [
+            session.declare_subscriber(keys.all_status, self._guard(ServiceStatus.decode, self.mon.on_status)),
+            session.declare_subscriber(keys.targets, self._guard(TaskTargets.decode, self.mon.on_targets)),
+            session.declare_subscriber(keys.mocap_frame, lambda _s: self._locked(self.mon.on_frame)),
+            session.declare_subscriber(keys.sim_state, self._on_state),
+            session.liveliness().declare_subscriber(keys.all_alive, self._on_alive, history=True),
+        ]
+
+    def _locked(self, fn, *a) -> None:
+        with self._lock:
+            fn(*a)
+
+    def _guard(self, decode, sink):
+        def cb(sample: zenoh.Sample) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes())
+            except MessageError:
+                return
+            self._locked(sink, msg)
+
+        return cb
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        try:
+            st = RobotState.decode(sample.payload.to_bytes())
+        except MessageError:
+            return
+        self._locked(self.mon.on_state, st, now, self._lower, self._upper)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        parsed = Keys.parse_alive(str(sample.key_expr))
+        if parsed is None:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(parsed)
+            else:
+                self.alive.discard(parsed)
+                self.lost.append(parsed)
+
+    def alive_services(self) -> set[str]:
+        with self._lock:
+            return {s for s, _ in self.alive}
+
+    def summary(self) -> dict:
+        with self._lock:
+            return self.mon.summary()
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()

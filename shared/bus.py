@@ -1,0 +1,386 @@
+"""Zenoh plumbing shared by every service.
+
+* :func:`add_bus_args` / :func:`zenoh_config`: the common flags
+  (``--mode --connect --listen --config --session``) and ``ZENOH_CONFIG``.
+  Default: peer mode, multicast scouting off, connecting to the local router
+  that ``mimic up`` starts on ``tcp/127.0.0.1:7447`` (``MIMIC_CONNECT``
+  overrides it, as docker-compose does).
+* :class:`ServiceRunner`: session, liveliness token, periodic
+  :class:`~shared.messages.ServiceStatus`, SIGINT/SIGTERM handling.
+* :class:`LatestSlot`: newest-sample-wins mailbox for streams where staleness
+  matters; samples overwritten before being read are counted as dropped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from shared.keys import DEFAULT_SESSION, Keys
+from shared.messages import MessageError, ServiceStatus
+
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+log = logging.getLogger("mimic.bus")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def add_bus_args(parser: argparse.ArgumentParser) -> None:
+    """Add the flags every service shares."""
+    g = parser.add_argument_group("bus (Zenoh)")
+    g.add_argument(
+        "--session", default=os.environ.get("MIMIC_SESSION", DEFAULT_SESSION), help="key prefix mimic/<session>"
+    )
+    g.add_argument("--mode", choices=("peer", "client", "router"), default=None, help="Zenoh mode (default peer)")
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"endpoint to connect to, repeatable (default $MIMIC_CONNECT or {DEFAULT_ROUTER})",
+    )
+    g.add_argument(
+        "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on, repeatable"
+    )
+    g.add_argument("--config", default=None, help="Zenoh JSON5 config file (default $ZENOH_CONFIG); flags override it")
+    g.add_argument("--status-period", type=float, default=1.0, help="ServiceStatus period [s]")
+
+
+def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
+    """Build the Zenoh config from a file (``--config`` / ``ZENOH_CONFIG``) and flags."""
+    path = getattr(args, "config", None) or os.environ.get("ZENOH_CONFIG")
+    if path:
+        if not Path(path).exists():
+            raise FileNotFoundError(f"Zenoh config {path} does not exist")
+        conf = zenoh.Config.from_file(path)
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    mode = getattr(args, "mode", None) or ("peer" if not path else None)
+    if mode:
+        conf.insert_json5("mode", json.dumps(mode))
+    connect = getattr(args, "connect", None)
+    if connect is None and not path:
+        connect = [e for e in os.environ.get("MIMIC_CONNECT", DEFAULT_ROUTER).split(",") if e]
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    listen = getattr(args, "listen", None)
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    elif not path and mode == "peer":
+        # Peers listen on an ephemeral loopback port so gossip lets them reach each other directly.
+        conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+    return conf
+
+
+def open_session(args: argparse.Namespace) -> zenoh.Session:
+    """Open a Zenoh session configured from ``args``."""
+    return zenoh.open(zenoh_config(args))
+
+
+def bus_args(**overrides: Any) -> argparse.Namespace:
+    """Namespace with the bus defaults, for code that opens a session without a CLI."""
+    p = argparse.ArgumentParser()
+    add_bus_args(p)
+    ns = p.parse_args([])
+    for k, v in overrides.items():
+        setattr(ns, k, v)
+    return ns
+
+
+# --------------------------------------------------------------------------- status
+
+
+class _Rate:
+    """Messages per second over a sliding window."""
+
+    def __init__(self, window: float = 2.0):
+        self.window = window
+        self.times: deque[float] = deque()
+
+    def tick(self, now: float) -> None:
+        self.times.append(now)
+
+    def rate(self, now: float) -> float:
+        while self.times and now - self.times[0] > self.window:
+            self.times.popleft()
+        return len(self.times) / self.window
+
+
+class StatusCounters:
+    """Thread-safe counters behind a service's ServiceStatus."""
+
+    def __init__(self, service: str, instance: str, logger: logging.Logger):
+        self.service = service
+        self.instance = instance
+        self.state = "ok"
+        self.extra: dict[str, float] = {}
+        self.start = time.monotonic()
+        self._log = logger
+        self._lock = threading.Lock()
+        self._counts: dict[str, int] = {}
+        self._rejects: dict[str, int] = {}
+        self._rates: dict[str, _Rate] = {}
+        self._last_error = ""
+
+    def _count(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            self._counts[name] = self._counts.get(name, 0) + n
+
+    def received(self, stream: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self._counts["received"] = self._counts.get("received", 0) + 1
+            self._counts[f"received.{stream}"] = self._counts.get(f"received.{stream}", 0) + 1
+            self._rates.setdefault(f"in.{stream}", _Rate()).tick(now)
+
+    def published(self, stream: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self._counts["published"] = self._counts.get("published", 0) + 1
+            self._counts[f"published.{stream}"] = self._counts.get(f"published.{stream}", 0) + 1
+            self._rates.setdefault(f"out.{stream}", _Rate()).tick(now)
+
+    def dropped(self, stream: str, n: int = 1) -> None:
+        self._count("dropped", n)
+        self._count(f"dropped.{stream}", n)
+
+    def reject(self, reason: str, detail: str) -> None:
+        """Count a rejected input; log the first of each reason (then every 1000th)."""
+        with self._lock:
+            k = self._rejects.get(reason, 0) + 1
+            self._rejects[reason] = k
+            self._counts["rejected"] = self._counts.get("rejected", 0) + 1
+            self._last_error = f"{reason}: {detail}"[:1000]
+        if k == 1 or k % 1000 == 0:
+            self._log.warning("rejected input (%s, #%d): %s", reason, k, detail)
+
+    def error(self, text: str) -> None:
+        with self._lock:
+            self._last_error = text[:1000]
+            self._counts["errors"] = self._counts.get("errors", 0) + 1
+        self._log.error("%s", text)
+
+    def count(self, name: str) -> int:
+        with self._lock:
+            return self._counts.get(name, 0)
+
+    def snapshot(self) -> ServiceStatus:
+        now = time.monotonic()
+        with self._lock:
+            return ServiceStatus(
+                service=self.service,
+                instance=self.instance,
+                state=self.state,
+                uptime=now - self.start,
+                rates={k: r.rate(now) for k, r in self._rates.items()},
+                counts=dict(self._counts),
+                rejects=dict(self._rejects),
+                last_error=self._last_error,
+                extra=dict(self.extra),
+            )
+
+
+# --------------------------------------------------------------------------- mailboxes
+
+
+class LatestSlot:
+    """Keep only the newest message; count the ones overwritten unread as dropped."""
+
+    def __init__(self, status: StatusCounters | None = None, stream: str = ""):
+        self._cond = threading.Condition()
+        self._msg: Any = None
+        self._fresh = False
+        self._status = status
+        self._stream = stream
+
+    def put(self, msg: Any) -> None:
+        with self._cond:
+            if self._fresh and self._status is not None:
+                self._status.dropped(self._stream)
+            self._msg = msg
+            self._fresh = True
+            self._cond.notify_all()
+
+    def take(self, timeout: float | None = None) -> Any:
+        """Newest unread message, waiting up to ``timeout`` [s]; None if none arrived."""
+        with self._cond:
+            if not self._fresh and timeout:
+                self._cond.wait(timeout)
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._msg
+
+    def peek(self) -> Any:
+        """Newest message whether read or not (None before the first)."""
+        with self._cond:
+            return self._msg
+
+
+# --------------------------------------------------------------------------- runner
+
+
+class ServiceRunner:
+    """Lifecycle of one service process on the bus.
+
+    Opens the session, declares the liveliness token
+    ``mimic/<session>/alive/<service>/<instance>``, publishes ServiceStatus on
+    ``mimic/<session>/<service>/status`` every ``--status-period`` seconds, and
+    turns SIGINT/SIGTERM into :attr:`stop_event`. Use as a context manager; on
+    exit everything is undeclared and the session closed.
+    """
+
+    def __init__(self, service: str, args: argparse.Namespace, instance: str = "main", install_signals: bool = True):
+        self.service = service
+        self.instance = instance
+        self.args = args
+        self.keys = Keys(getattr(args, "session", DEFAULT_SESSION))
+        self.log = logging.getLogger(f"mimic.{service}")
+        self.status = StatusCounters(service, instance, self.log)
+        self.stop_event = threading.Event()
+        self._install_signals = install_signals
+        self._entities: list[Any] = []
+        self._status_thread: threading.Thread | None = None
+        self.session: zenoh.Session | None = None
+
+    # lifecycle
+    def __enter__(self) -> ServiceRunner:
+        if self._install_signals and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._on_signal)
+        self.session = open_session(self.args)
+        self._entities.append(self.session.liveliness().declare_token(self.keys.alive(self.service, self.instance)))
+        self._status_pub = self.publisher(
+            self.keys.status(self.service, self.instance if self.instance != "main" else None)
+        )
+        self._status_thread = threading.Thread(target=self._status_loop, name=f"{self.service}-status", daemon=True)
+        self._status_thread.start()
+        self.log.info("%s/%s up on session %s", self.service, self.instance, self.keys.session)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop_event.set()
+        self.status.state = "stopping"
+        if self._status_thread is not None:
+            self._status_thread.join(timeout=2.0)
+        try:
+            self._publish_status()
+        except Exception:  # the session may already be unusable at exit
+            pass
+        for ent in reversed(self._entities):
+            try:
+                ent.undeclare()
+            except Exception:
+                pass
+        if self.session is not None:
+            self.session.close()
+        self.log.info("%s/%s stopped", self.service, self.instance)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.log.info("signal %d: stopping", signum)
+        self.stop_event.set()
+
+    def wait(self) -> None:
+        """Block until SIGINT/SIGTERM (or :attr:`stop_event` is set)."""
+        while not self.stop_event.wait(0.2):
+            pass
+
+    def _publish_status(self) -> None:
+        self._status_pub.put(self.status.snapshot().encode())
+
+    def _status_loop(self) -> None:
+        period = max(0.05, float(getattr(self.args, "status_period", 1.0)))
+        while not self.stop_event.wait(period):
+            try:
+                self._publish_status()
+            except Exception as exc:  # status must never take the service down
+                self.log.debug("status publish failed: %s", exc)
+
+    # helpers
+    def publisher(self, key: str, express: bool = True) -> zenoh.Publisher:
+        """Declare a publisher; ``express`` skips batching for lowest latency."""
+        pub = self.session.declare_publisher(key, express=express)
+        self._entities.append(pub)
+        return pub
+
+    def publish(self, pub: zenoh.Publisher, msg: Any, stream: str) -> None:
+        """Encode a message, put it, count it."""
+        pub.put(msg.encode())
+        self.status.published(stream)
+
+    def _decoding(self, decode: Callable[[bytes], Any], stream: str, sink: Callable[[Any], None]):
+        status = self.status
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes())
+            except MessageError as exc:
+                status.reject(exc.reason, f"{stream}: {exc.detail}")
+                return
+            except Exception as exc:  # a decoder bug must not kill the subscriber thread
+                status.reject("decoder", f"{stream}: {type(exc).__name__}: {exc}")
+                return
+            status.received(stream)
+            try:
+                sink(msg)
+            except Exception as exc:
+                status.error(f"{stream} handler failed: {type(exc).__name__}: {exc}")
+
+        return on_sample
+
+    def subscribe(self, key: str, callback: Callable[[Any], None], decode: Callable[[bytes], Any], stream: str):
+        """Every sample on ``key``, decoded; bad payloads rejected and counted."""
+        sub = self.session.declare_subscriber(key, self._decoding(decode, stream, callback))
+        self._entities.append(sub)
+        return sub
+
+    def subscribe_latest(self, key: str, decode: Callable[[bytes], Any], stream: str) -> LatestSlot:
+        """Newest-wins mailbox fed by a subscriber on ``key``."""
+        slot = LatestSlot(self.status, stream)
+        self.subscribe(key, slot.put, decode, stream)
+        return slot
+
+    def queryable(self, key: str, handler: Callable[[bytes | None], bytes]):
+        """Serve ``key``: ``handler(payload or None) -> reply bytes``; exceptions become error replies."""
+
+        def on_query(query: zenoh.Query) -> None:
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            try:
+                query.reply(key, handler(payload))
+            except Exception as exc:
+                self.status.reject("query", f"{key}: {exc}")
+                query.reply_err(f"{type(exc).__name__}: {exc}".encode())
+
+        q = self.session.declare_queryable(key, on_query)
+        self._entities.append(q)
+        return q
+
+
+def query(session: zenoh.Session, key: str, payload: bytes | None = None, timeout: float = 2.0) -> bytes:
+    """One request/reply on a queryable; raises RuntimeError on error or no reply."""
+    replies = session.get(key, payload=payload, timeout=timeout)
+    for reply in replies:
+        if reply.ok is not None:
+            return reply.ok.payload.to_bytes()
+        raise RuntimeError(f"query {key} failed: {reply.err.payload.to_bytes().decode(errors='replace')}")
+    raise RuntimeError(f"query {key}: no reply within {timeout} s")
+
+
+def setup_logging(level: str | int = "INFO", prefix: str = "") -> None:
+    """Process-wide logging format; ``MIMIC_LOG`` overrides the level."""
+    level = os.environ.get("MIMIC_LOG", level)
+    fmt = f"%(asctime)s %(levelname).1s {prefix}%(name)s: %(message)s"
+    logging.basicConfig(level=level, format=fmt, force=True)

@@ -1,0 +1,101 @@
+"""Zenoh key expressions: the only place a key string is written.
+
+Layout: ``mimic/<session>/<stage>/...``. ``session`` separates operators or
+experiments sharing one bus; it must be a single key chunk.
+"""
+
+from __future__ import annotations
+
+import re
+
+ROOT = "mimic"
+DEFAULT_SESSION = "default"
+_CHUNK = re.compile(r"^[A-Za-z0-9_\-]+$")
+
+
+def _chunk(value: str, what: str) -> str:
+    if not _CHUNK.match(value):
+        raise ValueError(f"{what} {value!r} must match [A-Za-z0-9_-]+ (one key chunk)")
+    return value
+
+
+class Keys:
+    """All key expressions of one session."""
+
+    def __init__(self, session: str = DEFAULT_SESSION):
+        self.session = _chunk(session, "session")
+        self.prefix = f"{ROOT}/{self.session}"
+
+    # data streams
+    @property
+    def mocap_frame(self) -> str:
+        return f"{self.prefix}/mocap/frame"
+
+    @property
+    def targets(self) -> str:
+        return f"{self.prefix}/retarget/targets"
+
+    def command(self, solver_id: str) -> str:
+        return f"{self.prefix}/solver/{_chunk(solver_id, 'solver id')}/command"
+
+    @property
+    def all_commands(self) -> str:
+        return f"{self.prefix}/solver/*/command"
+
+    @property
+    def sim_state(self) -> str:
+        return f"{self.prefix}/sim/state"
+
+    # health and control
+    def status(self, service: str, instance: str | None = None) -> str:
+        svc = _chunk(service, "service")
+        return (
+            f"{self.prefix}/{svc}/status"
+            if instance is None
+            else f"{self.prefix}/{svc}/{_chunk(instance, 'instance')}/status"
+        )
+
+    @property
+    def all_status(self) -> str:
+        return f"{self.prefix}/**/status"
+
+    def alive(self, service: str, instance: str) -> str:
+        return f"{self.prefix}/alive/{_chunk(service, 'service')}/{_chunk(instance, 'instance')}"
+
+    @property
+    def all_alive(self) -> str:
+        return f"{self.prefix}/alive/**"
+
+    def config(self, service: str) -> str:
+        """Queryable returning (GET) or setting (payload) a service's config."""
+        return f"{self.prefix}/{_chunk(service, 'service')}/config"
+
+    @property
+    def calibration(self) -> str:
+        return f"{self.prefix}/retarget/calibration"
+
+    @property
+    def sim_follow(self) -> str:
+        """Queryable: which solver id the sim follows."""
+        return f"{self.prefix}/sim/follow"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.prefix}/**"
+
+    @staticmethod
+    def all_sessions() -> str:
+        return f"{ROOT}/**"
+
+    @staticmethod
+    def parse_alive(key: str) -> tuple[str, str] | None:
+        """(service, instance) from an alive key, or None."""
+        parts = key.split("/")
+        if len(parts) == 5 and parts[0] == ROOT and parts[2] == "alive":
+            return parts[3], parts[4]
+        return None
+
+    @staticmethod
+    def session_of(key: str) -> str | None:
+        parts = key.split("/")
+        return parts[1] if len(parts) > 1 and parts[0] == ROOT else None

@@ -1,0 +1,113 @@
+"""MuJoCo model of a robot profile, built from the same URDF as Pinocchio.
+
+MuJoCo's URDF importer cannot resolve ``package://`` URIs, so the URDF text is
+rewritten with absolute mesh paths, static bodies are kept (the target frames
+are fixed links), and position servos are added to every joint through
+``MjSpec``. The pelvis has no free joint in the URDF, so it is welded to the
+world: the base is fixed, legs are held at rest by their servos.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from shared.robot.profile import RobotProfile, load_profile
+
+_MESH_RE = re.compile(r'filename="(package://[^"]+)"')
+
+
+def _urdf_for_mujoco(profile: RobotProfile) -> str:
+    text = profile.urdf_path.read_text()
+    text = _MESH_RE.sub(lambda m: f'filename="{profile.mesh_uri_to_path(m.group(1))}"', text)
+    compiler = (
+        '<mujoco><compiler fusestatic="false" discardvisual="false" strippath="false" '
+        'balanceinertia="true" angle="radian"/></mujoco>'
+    )
+    return re.sub(r"(<robot[^>]*>)", r"\1" + compiler, text, count=1)
+
+
+@dataclass
+class MujocoRobot:
+    """Compiled MuJoCo model plus index maps for the controlled joints.
+
+    Attributes:
+        model, data: MuJoCo model and data.
+        joint_names: (n,) controlled joints (same order as the Pinocchio model).
+        qpos_idx, dof_idx, act_idx: (n,) indices of those joints.
+        body_ids: target name -> body id of its frame.
+    """
+
+    profile: RobotProfile
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    joint_names: tuple[str, ...]
+    qpos_idx: np.ndarray
+    dof_idx: np.ndarray
+    act_idx: np.ndarray
+    body_ids: dict[str, int]
+
+    def set_q(self, q: np.ndarray) -> None:
+        """Set controlled joint positions (n,) [rad] and servo targets, then run kinematics."""
+        self.data.qpos[self.qpos_idx] = q
+        self.data.ctrl[self.act_idx] = q
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def frame_pose(self, target: str) -> tuple[np.ndarray, np.ndarray]:
+        """(p (3,) [m], R (3, 3)) of a target frame in the base (pelvis) frame."""
+        base = self.body_ids["__base__"]
+        bid = self.body_ids[target]
+        Rb = self.data.xmat[base].reshape(3, 3)
+        pb = self.data.xpos[base]
+        R = self.data.xmat[bid].reshape(3, 3)
+        return Rb.T @ (self.data.xpos[bid] - pb), Rb.T @ R
+
+
+def build_mujoco_robot(
+    profile: RobotProfile | str | None = None,
+    joint_names: tuple[str, ...] | None = None,
+    timestep: float = 0.001,
+) -> MujocoRobot:
+    """Compile the profile's URDF into MuJoCo with position servos on every joint.
+
+    Args:
+        profile: profile object, name or path.
+        joint_names: controlled joints, in the order the caller uses
+            (default: the profile's 17 with the waist).
+        timestep: physics step [s].
+    """
+    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+    spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(prof))
+    spec.option.timestep = timestep
+    kp = prof.actuators.get("kp", 400.0)
+    kv = prof.actuators.get("kv", 20.0)
+    armature = prof.actuators.get("armature", 0.01)
+    for joint in spec.joints:
+        joint.armature = armature
+        act = spec.add_actuator()
+        act.name = joint.name
+        act.target = joint.name
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.set_to_position(kp=kp, kv=kv)
+        if joint.limited:
+            act.ctrlrange = joint.range
+            act.ctrllimited = True
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    names = tuple(joint_names or prof.controlled_joints(True))
+    qpos_idx = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
+    dof_idx = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
+    act_idx = np.array([model.actuator(n).id for n in names])
+    body_ids = {t: model.body(f).id for t, f in prof.frames.items()}
+    body_ids["__base__"] = model.body(prof.base_frame).id
+    # Every joint (legs too) starts, and is held, at the rest pose.
+    for j in range(model.njnt):
+        name = model.joint(j).name
+        val = prof.rest.get(name, 0.0)
+        data.qpos[model.jnt_qposadr[j]] = val
+        data.ctrl[model.actuator(name).id] = val
+    mujoco.mj_forward(model, data)
+    return MujocoRobot(prof, model, data, names, qpos_idx, dof_idx, act_idx, body_ids)

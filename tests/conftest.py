@@ -1,0 +1,49 @@
+"""Shared fixtures: the real mocap data handed beside the repo, free ports."""
+
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: Real recorded motion lives beside the repo (never copied into it).
+MOCAP_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap"))
+
+
+def _require(path: Path) -> Path:
+    if not path.exists():
+        pytest.skip(f"real mocap data not found at {path} (set MIMIC_MOCAP_DIR); it is read at run time, never copied")
+    return path
+
+
+@pytest.fixture(scope="session")
+def mocap_dir() -> Path:
+    return _require(MOCAP_DIR)
+
+
+@pytest.fixture(scope="session")
+def bvh_clips() -> list[Path]:
+    clips = sorted(_require(MOCAP_DIR / "bvh").glob("*.bvh"))
+    if not clips:
+        pytest.skip(f"no .bvh clips in {MOCAP_DIR / 'bvh'}")
+    return clips
+
+
+@pytest.fixture(scope="session")
+def c3d_dir() -> Path:
+    return _require(MOCAP_DIR / "c3d")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture()
+def zenoh_endpoint() -> str:
+    """A fresh loopback endpoint for a router started by the test."""
+    return f"tcp/127.0.0.1:{free_port()}"

