@@ -1,0 +1,75 @@
+"""Retargeting figures over recorded clips, printed as JSON.
+
+``python -m services.retarget.bench [CLIP ...] [--modes paper bounded incremental]``
+(default: every ``.bvh`` in ``$MIMIC_MOCAP_DIR/bvh`` or ``../shared/data/mocap/bvh``).
+Each clip is calibrated the way the live service does it (anthropometric, first frame)
+and retargeted frame by frame; reported per mode: frames, targets outside the robot
+box, frames where the bounded clamp acted, and ``Retargeter.step`` time percentiles.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from shared.messages import TARGET_NAMES
+
+from .mapping import MODES
+from .retargeter import RetargetConfig, Retargeter
+
+DEFAULT_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"))
+
+
+def evaluate(paths: list[Path], modes: tuple[str, ...]) -> dict:
+    """Figures per mode over the clips (see module doc)."""
+    from services.ingest.clip import load_clip
+
+    clips = [load_clip(p) for p in paths]
+    base = Retargeter(RetargetConfig())
+    report: dict = {"clips": [c.name for c in clips], "workspace": base.workspace.summary(), "modes": {}}
+    for mode in modes:
+        outside = dict.fromkeys(TARGET_NAMES, 0)
+        clamped = dict.fromkeys(TARGET_NAMES, 0)
+        step_us, frames = [], 0
+        for clip in clips:
+            r = Retargeter(RetargetConfig(mode=mode), workspace=base.workspace, robot=base.robot)
+            for i in range(clip.n_frames):
+                f = clip.frame(i, seq=i + 1)
+                t0 = time.perf_counter()
+                out = r.step(f)
+                step_us.append((time.perf_counter() - t0) * 1e6)
+                frames += 1
+                for t in TARGET_NAMES:
+                    outside[t] += int(out is not None and not base.workspace.contains(t, out.targets[t].p))
+            for t in TARGET_NAMES:
+                clamped[t] += r.counts.get(f"clamped_{t}", 0)
+        report["modes"][mode] = {
+            "frames": frames,
+            "outside_box": outside,
+            "clamped": clamped,
+            "step_us": {q: round(float(np.percentile(step_us, int(q[1:]))), 1) for q in ("p50", "p95", "p99")},
+        }
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("clips", nargs="*", type=Path)
+    p.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    args = p.parse_args(argv)
+    paths = args.clips or sorted((DEFAULT_DIR / "bvh").glob("*.bvh"))
+    if not paths:
+        print(json.dumps({"error": f"no clips given and none in {DEFAULT_DIR / 'bvh'}"}))
+        return 2
+    print(json.dumps(evaluate(paths, tuple(args.modes)), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

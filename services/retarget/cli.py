@@ -1,0 +1,92 @@
+"""``mimic retarget``: HumanFrames -> wrist/elbow TaskTargets on the bus (seed 000 eqs. 1-4).
+
+The mapping mode flag is ``--mapping`` because ``--mode`` is the Zenoh mode shared by
+every service (:func:`shared.bus.add_bus_args`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from shared.bus import add_bus_args
+
+from .mapping import MODES
+from .workspace import DEFAULT_SAMPLES, Shrink
+
+log = logging.getLogger("mimic.retarget")
+
+
+def _shrink_arg(text: str) -> Shrink:
+    try:
+        return Shrink.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_retarget_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``retarget`` and ``retarget-plot``."""
+    g = p.add_argument_group("retargeting")
+    g.add_argument("--mapping", choices=MODES, default="bounded", help="position mapping mode (default bounded)")
+    g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
+    g.add_argument("--calibration", type=Path, default=None, help="operator calibration file (JSON or TOML)")
+    g.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help="Monte Carlo workspace samples")
+    g.add_argument("--seed", type=int, default=0, help="workspace sampling seed")
+    g.add_argument(
+        "--shrink",
+        type=_shrink_arg,
+        default=Shrink(),
+        help="workspace restriction: '0.05' = 5-95%% percentile box (default), '0.03m' = raw box minus 3 cm, "
+        "'0.05,0.01m' = both",
+    )
+    g.add_argument("--with-waist", action="store_true", help="sample the waist joints too for the workspace")
+    g.add_argument("--gain", type=float, default=1.0, help="incremental mapping gain k")
+    g.add_argument("--velocity-tau", type=float, default=0.05, help="velocity low-pass time constant [s]")
+    g.add_argument("--elbow-rotation", action="store_true", help="publish elbow orientations as used (use_rotation)")
+
+
+def config_from_args(args: argparse.Namespace):
+    """RetargetConfig from parsed options."""
+    from .retargeter import RetargetConfig
+
+    return RetargetConfig(
+        mode=args.mapping,
+        robot=args.robot,
+        samples=args.samples,
+        seed=args.seed,
+        with_waist=args.with_waist,
+        shrink=args.shrink,
+        gain=args.gain,
+        velocity_tau=args.velocity_tau,
+        elbow_rotation=args.elbow_rotation,
+        auto_calibrate=not getattr(args, "no_auto_calibrate", False),
+    )
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_retarget_options(p)
+    p.add_argument(
+        "--save-calibration", type=Path, default=None, help="write every new calibration (auto or set) to this JSON"
+    )
+    p.add_argument(
+        "--no-auto-calibrate",
+        action="store_true",
+        help="without --calibration, wait for one on the calibration queryable instead of using the first frame",
+    )
+    add_bus_args(p)
+
+
+def main(args: argparse.Namespace) -> int:
+    from .calibration import Calibration, CalibrationError
+    from .node import run
+    from .retargeter import Retargeter
+
+    try:
+        config = config_from_args(args)
+        calibration = Calibration.load(args.calibration) if args.calibration else None
+        retargeter = Retargeter(config, calibration)
+    except (CalibrationError, ValueError, OSError) as exc:
+        log.error("%s", exc)
+        return 2
+    return run(args, retargeter, args.save_calibration)

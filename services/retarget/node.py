@@ -1,0 +1,154 @@
+"""Bus wiring of the retarget service: mocap frames in, task targets out.
+
+Subscribes every HumanFrame on ``keys.mocap_frame`` (retargeting one frame costs
+~0.1 ms, so no frame is skipped), publishes TaskTargets on ``keys.targets``, and
+serves two queryables:
+
+* ``keys.calibration``: GET without payload returns the current calibration (msgpack
+  map, see :meth:`Calibration.to_dict`; ``{"calibrated": false}`` before any). A
+  payload (msgpack or JSON map) installs a new calibration and returns it; the
+  payload ``{"action": "recalibrate"}`` re-runs the anthropometric calibration on the
+  next usable frame (operator at rest).
+* ``keys.config("retarget")``: GET returns the configuration and workspace box.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+from shared.bus import ServiceRunner
+from shared.messages import HumanFrame
+
+from .calibration import Calibration, CalibrationError
+from .retargeter import Retargeter
+
+
+def _decode_map(payload: bytes) -> dict:
+    try:
+        d = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        try:
+            d = json.loads(payload.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            raise CalibrationError("calibration payload is neither msgpack nor JSON") from None
+    if not isinstance(d, dict):
+        raise CalibrationError(f"calibration payload must be a map, got {type(d).__name__}")
+    return d
+
+
+class RetargetNode:
+    """Glue between a :class:`Retargeter` and a :class:`ServiceRunner`.
+
+    Args:
+        retargeter: the pure logic.
+        svc: an entered ServiceRunner.
+        save_calibration: file every new calibration (auto or set) is written to, or None.
+    """
+
+    def __init__(self, retargeter: Retargeter, svc: ServiceRunner, save_calibration: Path | None = None):
+        self.retargeter = retargeter
+        self.svc = svc
+        self.save_calibration = save_calibration
+        self._lock = threading.Lock()
+        self._step_us: deque[float] = deque(maxlen=2000)
+        self._calibration_seen = retargeter.calibration
+        self._pub = svc.publisher(svc.keys.targets)
+        svc.subscribe(svc.keys.mocap_frame, self.on_frame, HumanFrame.decode, stream="frames")
+        svc.queryable(svc.keys.calibration, self.on_calibration)
+        svc.queryable(svc.keys.config("retarget"), self.on_config)
+
+    def on_frame(self, frame: HumanFrame) -> None:
+        """Retarget and publish one frame; rejects are counted in the status."""
+        t = time.perf_counter()
+        with self._lock:
+            out = self.retargeter.step(frame)
+            reject = self.retargeter.last_reject
+            cal = self.retargeter.calibration
+        self._step_us.append((time.perf_counter() - t) * 1e6)
+        if cal is not self._calibration_seen:
+            self._calibration_seen = cal
+            self._on_new_calibration(cal)
+        if out is None:
+            if reject is not None:
+                self.svc.status.reject(*reject)
+            return
+        self.svc.publish(self._pub, out, stream="targets")
+
+    def _on_new_calibration(self, cal: Calibration | None) -> None:
+        if cal is None:
+            return
+        self.svc.log.info(
+            "calibration %s: rest %s", cal.source, {t: np.round(p, 3).tolist() for t, p in cal.rest.items()}
+        )
+        if self.save_calibration is not None:
+            try:
+                cal.save(self.save_calibration)
+            except OSError as exc:
+                self.svc.status.error(f"cannot save calibration to {self.save_calibration}: {exc}")
+
+    def on_calibration(self, payload: bytes | None) -> bytes:
+        """Queryable handler: GET returns the calibration, a payload sets it (see module doc)."""
+        if payload:
+            d = _decode_map(payload)
+            if d.get("action") == "recalibrate":
+                with self._lock:
+                    self.retargeter.request_recalibration()
+                return msgpack.packb({"calibrated": self.retargeter.calibration is not None, "pending": True})
+            cal = Calibration.from_dict(d)
+            if cal.source == "manual":
+                cal.source = "query"
+            with self._lock:
+                self.retargeter.set_calibration(cal)
+            self._calibration_seen = cal
+            self._on_new_calibration(cal)
+        with self._lock:
+            cal = self.retargeter.calibration
+        if cal is None:
+            return msgpack.packb({"calibrated": False})
+        return msgpack.packb({"calibrated": True, **cal.to_dict()})
+
+    def on_config(self, payload: bytes | None) -> bytes:
+        """Queryable handler: the configuration and workspace box (read-only)."""
+        if payload:
+            raise ValueError("retarget config is read-only at run time; restart with other flags")
+        return msgpack.packb(
+            {"config": self.retargeter.config.to_dict(), "workspace": self.retargeter.workspace.summary()}
+        )
+
+    def update_status(self) -> None:
+        """Refresh the service-specific status figures."""
+        st = self.svc.status
+        if self._step_us:
+            us = np.asarray(self._step_us)
+            st.extra["step_us_p50"] = float(np.percentile(us, 50))
+            st.extra["step_us_p99"] = float(np.percentile(us, 99))
+        with self._lock:  # step() may add counters concurrently
+            counts = dict(self.retargeter.counts)
+            calibrated = self.retargeter.calibration is not None
+        for k, v in counts.items():
+            st.extra[k] = float(v)
+        st.state = "ok" if calibrated else "degraded"
+
+
+def run(args, retargeter: Retargeter, save_calibration: Path | None = None) -> int:
+    """Run the service until SIGINT/SIGTERM."""
+    with ServiceRunner("retarget", args) as svc:
+        node = RetargetNode(retargeter, svc, save_calibration)
+        node.update_status()
+        svc.log.info(
+            "retargeting %s -> %s, mode %s, calibration %s",
+            svc.keys.mocap_frame,
+            svc.keys.targets,
+            retargeter.config.mode,
+            retargeter.calibration.source if retargeter.calibration else "auto (first rest frame)",
+        )
+        while not svc.stop_event.wait(0.5):
+            node.update_status()
+    return 0

@@ -1,0 +1,273 @@
+"""The retarget service's pure logic: ``Retargeter.step(HumanFrame) -> TaskTargets | None``.
+
+Per frame and per target (both wrists and elbows):
+
+1. the source bone (robot profile ``[human]`` table) position goes through the
+   per-axis mapping of the configured mode (:mod:`.mapping`: eqs. 1-3 "paper",
+   "bounded" or "incremental") into the robot base frame;
+2. its orientation goes through eq. (4) (:mod:`.orientation`); elbows carry it with
+   ``use_rotation=False`` unless configured;
+3. linear and angular velocities are finite differences with the previous frame,
+   low-pass filtered (:mod:`.velocity`);
+4. a target whose bone is missing or invalid is published ``valid=False`` holding its
+   last valid pose (the robot rest pose before any) with zero velocity.
+
+Frames whose ``seq`` or ``stamp`` does not increase are rejected (``step`` returns
+None and ``last_reject`` says why); after ``resync_after`` consecutive rejects the
+source is taken to have restarted (e.g. a replayed clip) and is followed again.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from shared.messages import TARGET_NAMES, Header, HumanFrame, Target, TaskTargets
+from shared.robot.pinocchio_model import RobotModel, build_robot_model
+from shared.robot.profile import RobotProfile, load_profile
+
+from .calibration import Calibration, CalibrationError, anthropometric
+from .mapping import MODES, AbsoluteMap, IncrementalMap
+from .orientation import OrientationMap, angular_velocity, matrix_to_quat, quat_to_matrix
+from .velocity import LowPassVelocity
+from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RetargetConfig:
+    """Retarget configuration (all fields settable from the CLI or a config file).
+
+    Attributes:
+        mode: "bounded" (default), "paper" (eqs. 1-3 literally) or "incremental".
+        robot: robot profile name or path.
+        samples, seed: Monte Carlo workspace sampling (paper: 12 000 samples).
+        with_waist: sample the waist joints too (default: arms only, waist at rest).
+        shrink: workspace restriction (default 5-95 % percentile box).
+        gain: incremental mapping gain k [-].
+        velocity_tau: velocity low-pass time constant [s] (0 = raw differences).
+        max_gap: frame gap [s] above which velocities restart from zero.
+        elbow_rotation: publish elbow orientations with use_rotation=True.
+        resync_after: consecutive non-increasing frames after which the source counts as restarted.
+        auto_calibrate: without a calibration, calibrate anthropometrically from the first frame
+            whose arm bones are all valid (the operator must start at rest, arms hanging).
+        one_arm_after: auto-calibration frames with only one valid arm to skip before accepting one
+            (the other arm is then mirrored; one-armed marker sets never show both).
+    """
+
+    mode: str = "bounded"
+    robot: str = "g1_29dof"
+    samples: int = DEFAULT_SAMPLES
+    seed: int = 0
+    with_waist: bool = False
+    shrink: Shrink = field(default_factory=Shrink)
+    gain: float = 1.0
+    velocity_tau: float = 0.05
+    max_gap: float = 0.5
+    elbow_rotation: bool = False
+    resync_after: int = 30
+    auto_calibrate: bool = True
+    one_arm_after: int = 30
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"retarget mode {self.mode!r}; known: {list(MODES)}")
+        if not self.gain > 0:
+            raise ValueError(f"incremental gain {self.gain} must be > 0")
+        if self.resync_after < 1:
+            raise ValueError(f"resync_after {self.resync_after} must be >= 1")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["shrink"] = self.shrink.to_dict()
+        return d
+
+
+class Retargeter:
+    """HumanFrames in the operator pelvis frame -> wrist/elbow TaskTargets in the robot base frame.
+
+    Args:
+        config: see :class:`RetargetConfig`.
+        calibration: operator calibration; None = auto-calibrate (if configured) on the first usable frame.
+        workspace: robot workspace; None = load (cached) per the config.
+        robot: reduced robot model; None = build from the config.
+    """
+
+    def __init__(
+        self,
+        config: RetargetConfig | None = None,
+        calibration: Calibration | None = None,
+        workspace: Workspace | None = None,
+        robot: RobotModel | None = None,
+    ):
+        self.config = config or RetargetConfig()
+        prof = robot.profile if robot is not None else load_profile(self.config.robot)
+        self.profile: RobotProfile = prof
+        self.robot = robot or build_robot_model(prof, with_waist=self.config.with_waist)
+        self.workspace = workspace or load_workspace(
+            prof,
+            self.config.samples,
+            self.config.seed,
+            self.config.with_waist,
+            self.config.shrink,
+            robot=self.robot,
+        )
+        #: target -> source human bone
+        self.bone_of = {t: prof.human.get(t, t) for t in TARGET_NAMES}
+        rest = self.robot.frame_poses(self.robot.q_rest, names=TARGET_NAMES)
+        #: target -> (p (3,), R (3, 3)) robot rest pose in the base frame
+        self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
+        self.rejects: Counter[str] = Counter()
+        self.counts: Counter[str] = Counter()
+        self.last_reject: tuple[str, str] | None = None
+        self.calibration: Calibration | None = None
+        self._recalibrate = calibration is None and self.config.auto_calibrate
+        self._calib_tries = 0
+        self._reset_stream()
+        if calibration is not None:
+            self.set_calibration(calibration)
+
+    # ------------------------------------------------------------------ state
+
+    def _reset_stream(self) -> None:
+        """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
+        self._last_seq: int | None = None
+        self._last_stamp: float | None = None
+        self._bad_in_row = 0
+        self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
+        self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
+        self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        self._wfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        for m in getattr(self, "_pos_map", {}).values():
+            if isinstance(m, IncrementalMap):
+                m.reanchor()
+
+    def set_calibration(self, calibration: Calibration) -> None:
+        """Install an operator calibration: rebuilds the per-target maps and restarts the stream state."""
+        self.calibration = calibration
+        self._recalibrate = False
+        ws = self.workspace
+        self._pos_map: dict[str, AbsoluteMap | IncrementalMap] = {}
+        self._rot_map: dict[str, OrientationMap] = {}
+        for t in TARGET_NAMES:
+            if self.config.mode == "incremental":
+                self._pos_map[t] = IncrementalMap(
+                    np.clip(self.robot_rest[t][0], ws.lower[t], ws.upper[t]), self.config.gain, ws.lower[t], ws.upper[t]
+                )
+            else:
+                self._pos_map[t] = AbsoluteMap.build(
+                    self.config.mode, calibration.rest[t], calibration.lower[t], calibration.upper[t],
+                    ws.lower[t], ws.upper[t],
+                )  # fmt: skip
+            self._rot_map[t] = OrientationMap(quat_to_matrix(calibration.rest_q[t]), self.robot_rest[t][1])
+        self._reset_stream()
+        log.info("calibration installed (%s), mode %s", calibration.source, self.config.mode)
+
+    def request_recalibration(self) -> None:
+        """Calibrate anthropometrically again from the next frame with valid arm bones."""
+        self._recalibrate = True
+        self._calib_tries = 0
+
+    def rest_targets(self) -> dict[str, np.ndarray]:
+        """Robot target for the operator at rest, target -> (3,) [m] (``U_ps`` of eq. 1; the current
+        target in incremental mode); empty before any calibration."""
+        if self.calibration is None:
+            return {}
+        return {t: (m.U_s if isinstance(m, AbsoluteMap) else m.U).copy() for t, m in self._pos_map.items()}
+
+    # ------------------------------------------------------------------ step
+
+    def _reject(self, reason: str, detail: str) -> None:
+        self.rejects[reason] += 1
+        self.last_reject = (reason, detail)
+
+    def _check_order(self, hdr: Header) -> bool:
+        if self._last_seq is None:
+            return True
+        reason = None
+        if hdr.seq == self._last_seq:
+            reason, detail = "duplicate_seq", f"seq {hdr.seq} repeated"
+        elif hdr.seq < self._last_seq:
+            reason, detail = "seq_backwards", f"seq {hdr.seq} after {self._last_seq}"
+        elif hdr.stamp <= self._last_stamp:
+            reason, detail = "time_backwards", f"stamp {hdr.stamp:.6f} s not after {self._last_stamp:.6f} s"
+        if reason is None:
+            self._bad_in_row = 0
+            return True
+        self._bad_in_row += 1
+        if self._bad_in_row >= self.config.resync_after:
+            log.warning(
+                "source restarted (%d frames out of order, last: %s); resynchronising", self._bad_in_row, detail
+            )
+            self.counts["resync"] += 1
+            self._reset_stream()
+            return True
+        self._reject(reason, detail)
+        return False
+
+    def step(self, frame: HumanFrame) -> TaskTargets | None:
+        """Retarget one frame.
+
+        Returns:
+            TaskTargets with ``frame.hdr`` copied unchanged, or None when the frame is rejected
+            (order) or no calibration is available yet; ``last_reject`` then says why.
+        """
+        self.last_reject = None
+        hdr = frame.hdr
+        if not self._check_order(hdr):
+            return None
+        dt = None if self._last_stamp is None else hdr.stamp - self._last_stamp
+        self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+        if self._recalibrate:
+            try:
+                cal = anthropometric(frame, self.bone_of)
+                self._calib_tries += 1
+                if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
+                    raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
+                self.set_calibration(cal)
+                self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+                dt = None
+            except CalibrationError as exc:
+                if self.calibration is None:
+                    self._reject("uncalibrated", f"waiting for a rest frame with valid arm bones: {exc}")
+                    return None
+        if self.calibration is None:
+            self._reject("uncalibrated", "no calibration (give one or enable auto_calibrate)")
+            return None
+        self.counts["frames"] += 1
+        targets = {}
+        for t in TARGET_NAMES:
+            targets[t] = self._target(t, frame, dt)
+        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
+
+    def _target(self, t: str, frame: HumanFrame, dt: float | None) -> Target:
+        use_rot = t.endswith("wrist") or self.config.elbow_rotation
+        bone = frame.bones.get(self.bone_of[t])
+        if bone is None or not bone.valid:
+            self.counts[f"invalid_{t}"] += 1
+            self._prev[t] = None
+            self._vfilt[t].reset()
+            self._wfilt[t].reset()
+            pos_map = self._pos_map[t]
+            if isinstance(pos_map, IncrementalMap):
+                pos_map.reanchor()
+            p, R = self._held[t]
+            return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
+        p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
+        if clamped.any():
+            self.counts[f"clamped_{t}"] += 1
+        R = self._rot_map[t](quat_to_matrix(bone.q))
+        prev = self._prev[t]
+        if prev is None or dt is None or dt <= 0:
+            v = self._vfilt[t].update(None, 1.0)
+            w = self._wfilt[t].update(None, 1.0)
+        else:
+            v = self._vfilt[t].update((p - prev[0]) / dt, dt)
+            w = self._wfilt[t].update(angular_velocity(prev[1], R, dt), dt)
+        self._prev[t] = (p, R)
+        self._held[t] = (p, R)
+        return Target(p, matrix_to_quat(R), v, w, valid=True, use_rotation=use_rot)

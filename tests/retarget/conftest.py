@@ -1,0 +1,72 @@
+"""Synthetic HumanFrames and a shared retargeting setup for the retarget tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shared.messages import Bone, Header, HumanFrame, Pose
+from shared.robot.pinocchio_model import build_robot_model
+
+IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
+
+#: Operator at rest (arms hanging), pelvis frame x forward, y left, z up [m]; y of the right side is mirrored.
+REST_LEFT = {
+    "left_shoulder": (0.0, 0.18, 0.45),
+    "left_elbow": (0.0, 0.20, 0.17),
+    "left_wrist": (0.02, 0.20, -0.08),
+    "left_hand": (0.03, 0.20, -0.16),
+}
+
+
+def make_frame(
+    seq: int,
+    stamp: float,
+    offsets: dict[str, np.ndarray] | None = None,
+    quats: dict[str, np.ndarray] | None = None,
+    invalid: tuple[str, ...] = (),
+    drop: tuple[str, ...] = (),
+    t0: int = 123456789,
+) -> HumanFrame:
+    """Synthetic operator frame: the rest pose plus per-bone position offsets (3,) [m]."""
+    bones = {}
+    for name, p in REST_LEFT.items():
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            bone = name.replace("left", side)
+            pos = np.array([p[0], sign * p[1], p[2]])
+            if offsets and bone in offsets:
+                pos = pos + offsets[bone]
+            q = quats[bone] if quats and bone in quats else IDENTITY_Q
+            if bone not in drop:
+                bones[bone] = Bone(pos, np.asarray(q, dtype=float), bone not in invalid)
+    return HumanFrame(Header(seq, stamp, t0), "synthetic", Pose(np.zeros(3), IDENTITY_Q.copy()), bones)
+
+
+def random_quat(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+@pytest.fixture(scope="session")
+def robot14():
+    """G1 reduced to the 14 arm joints (waist at rest)."""
+    return build_robot_model(with_waist=False)
+
+
+@pytest.fixture(scope="session")
+def workspace(robot14, tmp_path_factory):
+    """Default workspace (12 000 samples, 5-95 % box), cached in a test-private folder."""
+    import os
+
+    from services.retarget.workspace import load_workspace
+
+    old = os.environ.get("MIMIC_CACHE_DIR")
+    os.environ["MIMIC_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
+    try:
+        return load_workspace(robot14.profile, robot=robot14, progress=False)
+    finally:
+        if old is None:
+            os.environ.pop("MIMIC_CACHE_DIR", None)
+        else:
+            os.environ["MIMIC_CACHE_DIR"] = old

@@ -1,0 +1,179 @@
+"""Retargeter.step on synthetic HumanFrames: headers, eq. (4), validity, order, velocities, modes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import make_frame, random_quat
+
+from services.retarget.calibration import anthropometric
+from services.retarget.orientation import matrix_to_quat, quat_to_matrix
+from services.retarget.retargeter import RetargetConfig, Retargeter
+from shared.messages import TARGET_NAMES, TaskTargets
+
+
+@pytest.fixture()
+def make(robot14, workspace):
+    def _make(**cfg):
+        cal = cfg.pop("calibration", None)
+        return Retargeter(RetargetConfig(**cfg), calibration=cal, workspace=workspace, robot=robot14)
+
+    return _make
+
+
+def test_header_copied_and_message_valid(make):
+    r = make()
+    out = r.step(make_frame(41, 12.5, t0=987654321))
+    assert (out.hdr.seq, out.hdr.stamp, out.hdr.t0) == (41, 12.5, 987654321)
+    assert out.mode == "bounded"
+    back = TaskTargets.decode(out.encode())
+    assert set(back.targets) == set(TARGET_NAMES)
+    assert back.targets["left_wrist"].use_rotation and not back.targets["left_elbow"].use_rotation
+    assert r.calibration.source == "anthropometric"
+
+
+def test_operator_at_rest_gives_robot_rest_orientation(make, robot14):
+    rng = np.random.default_rng(5)
+    quats = {b: random_quat(rng) for b in TARGET_NAMES}
+    r = make(elbow_rotation=True)
+    out = r.step(make_frame(0, 0.0, quats=quats))  # auto calibration: this frame is the rest
+    rest = robot14.frame_poses(robot14.q_rest, names=TARGET_NAMES)
+    for t in TARGET_NAMES:
+        np.testing.assert_allclose(quat_to_matrix(out.targets[t].q), rest[t][1], atol=1e-9)
+    # the same rest again later (new frame) still maps to the robot rest orientation
+    out = r.step(make_frame(1, 0.1, quats=quats))
+    for t in TARGET_NAMES:
+        np.testing.assert_allclose(quat_to_matrix(out.targets[t].q), rest[t][1], atol=1e-9)
+
+
+def test_operator_rotation_is_reproduced_in_the_pelvis_frame(make, robot14):
+    rng = np.random.default_rng(6)
+    q_rest = random_quat(rng)
+    r = make()
+    r.step(make_frame(0, 0.0, quats={"left_wrist": q_rest}))
+    delta = pin.exp3(np.array([0.3, -0.5, 0.8]))
+    q_new = matrix_to_quat(delta @ quat_to_matrix(q_rest))
+    out = r.step(make_frame(1, 0.1, quats={"left_wrist": q_new}))
+    R_U_rest = robot14.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][1]
+    np.testing.assert_allclose(quat_to_matrix(out.targets["left_wrist"].q), delta @ R_U_rest, atol=1e-9)
+
+
+def test_rest_maps_to_eq1_and_motion_scales_per_axis(make, workspace):
+    r = make(mode="paper")
+    out = r.step(make_frame(0, 0.0))
+    cal = r.calibration
+    for t in TARGET_NAMES:
+        lo, hi = workspace.lower[t], workspace.upper[t]
+        ratio = (cal.rest[t] - cal.lower[t]) / (cal.upper[t] - cal.lower[t])
+        np.testing.assert_allclose(out.targets[t].p, lo + ratio * (hi - lo), atol=1e-12)
+    dH = np.array([0.1, -0.05, 0.2])
+    out2 = r.step(make_frame(1, 0.1, offsets={"left_wrist": dH}))
+    M = (workspace.upper["left_wrist"] - out.targets["left_wrist"].p) / (
+        cal.upper["left_wrist"] - cal.rest["left_wrist"]
+    )
+    np.testing.assert_allclose(out2.targets["left_wrist"].p - out.targets["left_wrist"].p, M * dH, atol=1e-12)
+    np.testing.assert_allclose(out2.targets["right_wrist"].p, out.targets["right_wrist"].p)
+
+
+def test_invalid_or_missing_bones_give_invalid_targets_holding_the_last_pose(make):
+    r = make()
+    a = r.step(make_frame(0, 0.0))
+    b = r.step(make_frame(1, 0.1, invalid=("left_wrist",), drop=("right_elbow",)))
+    assert not b.targets["left_wrist"].valid and not b.targets["right_elbow"].valid
+    assert b.targets["right_wrist"].valid and b.targets["left_elbow"].valid
+    np.testing.assert_allclose(b.targets["left_wrist"].p, a.targets["left_wrist"].p)
+    assert np.all(b.targets["left_wrist"].v == 0) and np.all(b.targets["left_wrist"].w == 0)
+    assert r.counts["invalid_left_wrist"] == 1 and r.counts["invalid_right_elbow"] == 1
+    c = r.step(make_frame(2, 0.2, offsets={"left_wrist": np.array([0.0, 0.0, 0.1])}))
+    assert c.targets["left_wrist"].valid
+    assert np.all(c.targets["left_wrist"].v == 0)  # no finite difference across the invalid frame
+
+
+def test_no_calibration_without_valid_arm_bones(make):
+    r = make(one_arm_after=2)
+    assert r.step(make_frame(0, 0.0, invalid=("left_shoulder", "right_wrist"))) is None
+    assert r.last_reject[0] == "uncalibrated"
+    assert r.step(make_frame(1, 0.1, invalid=("left_shoulder",))) is None  # one arm: wait for both
+    assert r.step(make_frame(2, 0.2)) is not None and r.calibration.source == "anthropometric"
+    # a one-armed source is accepted after `one_arm_after` frames, the other arm mirrored
+    r = make(one_arm_after=2)
+    outs = [r.step(make_frame(i, i / 10, drop=("left_shoulder", "left_elbow", "left_wrist"))) for i in range(4)]
+    assert [o is None for o in outs] == [True, True, False, False]
+    assert "mirrored" in r.calibration.source
+    assert not outs[-1].targets["left_wrist"].valid and outs[-1].targets["right_wrist"].valid
+    r2 = make(auto_calibrate=False)
+    assert r2.step(make_frame(0, 0.0)) is None and r2.rejects["uncalibrated"] == 1
+
+
+def test_out_of_order_frames_rejected_with_reasons_then_resync(make):
+    r = make(resync_after=3)
+    assert r.step(make_frame(10, 1.0)) is not None
+    assert r.step(make_frame(10, 1.1)) is None and r.last_reject[0] == "duplicate_seq"
+    assert r.step(make_frame(9, 1.2)) is None and r.last_reject[0] == "seq_backwards"
+    # third bad frame in a row (stamp not after 1.0): the source counts as restarted and is followed
+    assert r.step(make_frame(11, 1.0)) is not None
+    assert r.counts["resync"] == 1
+    assert r.rejects == {"duplicate_seq": 1, "seq_backwards": 1}
+    r = make()
+    r.step(make_frame(1, 1.0))
+    assert r.step(make_frame(2, 0.5)) is None and r.last_reject[0] == "time_backwards"
+    assert r.step(make_frame(3, 1.0)) is None and r.last_reject[0] == "time_backwards"
+    assert r.step(make_frame(4, 1.05)) is not None and r.last_reject is None
+
+
+def test_velocities_follow_the_mapped_motion(make):
+    r = make(mode="paper", velocity_tau=0.02)
+    dt, vH = 1 / 60, np.array([0.2, 0.1, 0.3])
+    r.step(make_frame(0, 0.0))
+    M = r._pos_map["left_wrist"].M_up
+    for i in range(1, 60):
+        out = r.step(make_frame(i, i * dt, offsets={"left_wrist": vH * i * dt}))
+    np.testing.assert_allclose(out.targets["left_wrist"].v, M * vH, rtol=1e-6)
+    np.testing.assert_allclose(out.targets["right_wrist"].v, 0.0, atol=1e-12)
+    # angular velocity of a steady rotation about z at 1 rad/s
+    r = make(velocity_tau=0.0)
+    for i in range(5):
+        q = matrix_to_quat(pin.exp3(np.array([0.0, 0.0, 1.0 * i * dt])))
+        out = r.step(make_frame(i, i * dt, quats={"right_wrist": q}))
+    np.testing.assert_allclose(out.targets["right_wrist"].w, [0.0, 0.0, 1.0], atol=1e-9)
+
+
+def test_bounded_mode_keeps_wild_motion_in_the_box(make, workspace):
+    r = make()
+    rng = np.random.default_rng(2)
+    r.step(make_frame(0, 0.0))
+    for i in range(1, 200):
+        offs = {b: rng.uniform(-1.5, 1.5, 3) for b in TARGET_NAMES}
+        out = r.step(make_frame(i, i / 30, offsets=offs))
+        for t in TARGET_NAMES:
+            assert workspace.contains(t, out.targets[t].p)
+    assert r.counts["clamped_left_wrist"] > 0
+
+
+def test_incremental_mode_starts_at_robot_rest_and_adds_deltas(make, robot14, workspace):
+    r = make(mode="incremental", gain=0.5)
+    out0 = r.step(make_frame(0, 0.0))
+    rest = robot14.frame_poses(robot14.q_rest, names=TARGET_NAMES)
+    for t in TARGET_NAMES:
+        np.testing.assert_allclose(out0.targets[t].p, np.clip(rest[t][0], workspace.lower[t], workspace.upper[t]))
+    out1 = r.step(make_frame(1, 0.1, offsets={"left_elbow": np.array([0.02, 0.0, 0.04])}))
+    np.testing.assert_allclose(
+        out1.targets["left_elbow"].p - out0.targets["left_elbow"].p, [0.01, 0.0, 0.02], atol=1e-12
+    )
+
+
+def test_explicit_calibration_and_recalibration(make):
+    cal = anthropometric(make_frame(0, 0.0, offsets={"left_wrist": np.array([0.0, 0.0, -0.05])}))
+    r = make(calibration=cal)
+    out = r.step(make_frame(0, 0.0))
+    assert r.calibration is cal
+    r.request_recalibration()
+    out2 = r.step(make_frame(1, 0.1))
+    assert r.calibration is not cal and r.calibration.source == "anthropometric"
+    assert not np.allclose(out.targets["left_wrist"].p, out2.targets["left_wrist"].p)
+
+
+def test_bad_config_is_a_clear_error():
+    with pytest.raises(ValueError, match="known"):
+        RetargetConfig(mode="fancy")
