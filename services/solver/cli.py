@@ -1,0 +1,33 @@
+"""``mimic solve``: the solver service."""
+
+from __future__ import annotations
+
+import argparse
+
+from services.solver.algorithms import ALGORITHMS
+from services.solver.qp import QP_BACKENDS
+from shared.bus import add_bus_args
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``mimic solve``."""
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="hqp-nullspace", help="solver algorithm")
+    parser.add_argument("--qp", choices=sorted(QP_BACKENDS), default="piqp", help="QP backend")
+    parser.add_argument("--id", default="main", help="solver id: commands go to mimic/<session>/solver/<id>/command")
+    parser.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
+    parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")
+    parser.add_argument("--robot", default=None, help="robot profile name or TOML path (default g1_29dof)")
+    parser.add_argument("--no-smoothing", action="store_true", help="publish raw solver output (no quintic)")
+    parser.add_argument("--orientation-weight", type=float, default=0.3, help="wrist orientation cost [1/rad]")
+    parser.add_argument("--gain", type=float, default=50.0, help="task error gain [1/s]")
+    parser.add_argument(
+        "--startup-wait", type=float, default=0.5, help="wait this long [s] for a robot state to start from"
+    )
+    add_bus_args(parser)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the solver service."""
+    from services.solver.node import run
+
+    return run(args)

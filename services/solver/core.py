@@ -1,0 +1,245 @@
+"""SolverCore: the solver service's logic, free of any bus.
+
+One :meth:`SolverCore.step` per control tick: take the newest targets and
+measured joints (either may be None), sample the targets at the tick time,
+build the three priority levels (wrists, elbows, posture), solve joint
+velocities with the chosen algorithm, integrate, smooth and return the
+:class:`~shared.messages.JointCommand`. Every command respects the position
+and velocity limits: a failed solve holds the previous safe position, and a
+final clamp (counted) is the last safety net.
+
+The command integrates its own state; the measured joints initialise it (so a
+solver started mid-stream continues from where the robot is, without a jump)
+and re-anchor it when command and robot drift apart by more than
+``resync_threshold`` (the robot was blocked, or the sim restarted).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.solver.algorithms import make_algorithm
+from services.solver.quintic import QuinticSmoother
+from services.solver.targets import TargetTracker
+from shared.kinematics import (
+    Configuration,
+    ConfigurationLimit,
+    FrameTask,
+    PositionTask,
+    PostureTask,
+    VelocityLimit,
+)
+from shared.messages import Header, JointCommand, TaskTargets
+from shared.robot.pinocchio_model import RobotModel
+
+WRISTS = ("left_wrist", "right_wrist")
+ELBOWS = ("left_elbow", "right_elbow")
+
+
+@dataclass
+class SolverConfig:
+    """Solver settings.
+
+    Attributes:
+        algo: algorithm name (``hqp-nullspace``, ``hqp-original``, ``wqp``, ``clik-nullspace``, ``dls``).
+        qp: QP backend (``piqp`` or ``daqp``).
+        rate: control rate [Hz]; dt = 1 / rate.
+        solver_id: id published in every command.
+        wrist_position_cost: weight of wrist position rows [1/m].
+        wrist_orientation_cost: weight of wrist orientation rows [1/rad] (0 = position only).
+        elbow_cost: weight of elbow position rows [1/m].
+        posture_cost: weight of the posture rows [1/rad].
+        gain: task error gain [1/s] (wrists and elbows).
+        posture_gain: posture error gain [1/s].
+        damping: per-level damping ``eps ||z||^2`` (level 1, then lower levels): keeps joint
+            velocities finite near singular directions; level 1 gets far less so the wrists stay exact.
+        smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
+        target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
+        resync_threshold: re-anchor on the measured joints beyond this drift [rad].
+        infeasible_tol: level-1 residual above which the status is ``infeasible``.
+    """
+
+    algo: str = "hqp-nullspace"
+    qp: str = "piqp"
+    rate: float = 500.0
+    solver_id: str = "main"
+    wrist_position_cost: float = 1.0
+    wrist_orientation_cost: float = 0.3
+    elbow_cost: float = 1.0
+    posture_cost: float = 1e-2
+    gain: float = 50.0
+    posture_gain: float = 5.0
+    damping: tuple[float, ...] = (1e-6, 1e-3)
+    smoothing: bool = True
+    smoothing_ticks: int = 4
+    target_horizon: float = 0.05
+    target_timeout: float = 0.5
+    resync_threshold: float = 0.3
+    infeasible_tol: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.rate <= 10000.0:
+            raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.rate
+
+
+class SolverCore:
+    """Fixed-rate joint command generator for one robot.
+
+    Args:
+        robot: reduced robot model (14 or 17 joints).
+        config: settings.
+    """
+
+    def __init__(self, robot: RobotModel, config: SolverConfig | None = None):
+        self.robot = robot
+        self.config = cfg = config or SolverConfig()
+        self.algorithm = make_algorithm(cfg.algo, cfg.qp, cfg.damping)
+        self.dt = cfg.dt
+        self.n = robot.nq
+        self.configuration = Configuration(robot)
+        self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS]
+        self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, cfg.gain) for e in ELBOWS]
+        self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
+        self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
+        self.limits = [ConfigurationLimit(robot.lower, robot.upper), VelocityLimit(robot.vmax)]
+        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.smoother = QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks) if cfg.smoothing else None
+        self.q_raw = robot.q_rest.copy()  # the solver's own integrated state
+        self.q_out = robot.q_rest.copy()  # last published position
+        self.qd_out = np.zeros(self.n)
+        self.initialised = False
+        self._joints = list(robot.joint_names)  # shared by every command (never mutated)
+        self.counts = {"ticks": 0, "failed": 0, "safety_clamps": 0, "smoothing_clamps": 0, "resyncs": 0, "qp_calls": 0}
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self, q: np.ndarray) -> None:
+        """Restart from q (n,) [rad] at rest (clipped into the position limits)."""
+        q = self.robot.clip(np.asarray(q, dtype=float))
+        self.q_raw[:] = q
+        self.q_out[:] = q
+        self.qd_out[:] = 0.0
+        if self.smoother is not None:
+            self.smoother.reset(q)
+        self.initialised = True
+
+    def _check_measured(self, q: np.ndarray | None) -> np.ndarray | None:
+        if q is None:
+            return None
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"measured q must be ({self.n},) finite, got shape {q.shape}")
+        return q
+
+    # ------------------------------------------------------------------ tick
+
+    def step(self, targets: TaskTargets | None, measured_q: np.ndarray | None, t: float) -> JointCommand:
+        """One control tick at solver time t [s].
+
+        Args:
+            targets: newest TaskTargets since the last tick, or None.
+            measured_q: (n,) measured joints [rad] in model order, or None.
+            t: monotonic solver time [s].
+        """
+        t_start = time.perf_counter()
+        cfg = self.config
+        measured = self._check_measured(measured_q)
+        if not self.initialised:
+            self.reset(self.robot.q_rest if measured is None else measured)
+        elif measured is not None and np.max(np.abs(measured - self.q_out)) > cfg.resync_threshold:
+            self.counts["resyncs"] += 1
+            self.reset(measured)
+        if targets is not None:
+            self.tracker.update(targets, t)
+        self.counts["ticks"] += 1
+        if not self.tracker.started:
+            # Hold the pose we started from until the first targets arrive.
+            self.qd_out[:] = 0.0
+            return self._command("init", [], 0, 0, "waiting for targets", t_start, t)
+
+        conf = self.configuration
+        conf.update(self.q_raw)
+        held = self._set_targets(t)
+        sol = self.algorithm.solve(conf, self.levels, self.limits, self.dt)
+        self.counts["qp_calls"] += sol.qp_calls
+        lb, ub = self.algorithm.last_bounds  # the bounds this tick's solve used (same q, same dt)
+        reason = sol.reason
+        if sol.ok and np.all(np.isfinite(sol.qd)):
+            qd = sol.qd
+            if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
+                self.counts["safety_clamps"] += 1
+                reason = (reason + "; " if reason else "") + "safety clamp"
+            qd = np.minimum(np.maximum(qd, lb), ub)
+            if held:
+                status = "held"
+            elif sol.residuals and sol.residuals[0] > cfg.infeasible_tol:
+                status = "infeasible"
+            else:
+                status = "ok"
+        else:
+            self.counts["failed"] += 1
+            qd = np.zeros(self.n)
+            status = "failed"
+            reason = reason or "solution not finite"
+        q_next = self.q_raw + qd * self.dt
+        np.minimum(np.maximum(q_next, self.robot.lower, out=q_next), self.robot.upper, out=self.q_raw)
+        q_prev = self.q_out.copy()
+        if self.smoother is not None:
+            self.smoother.step(self.q_raw, qd)
+            if self.smoother.clamp(q_prev, self.robot.lower, self.robot.upper, self.robot.vmax):
+                self.counts["smoothing_clamps"] += 1
+            self.q_out[:] = self.smoother.p
+            self.qd_out[:] = self.smoother.v
+        else:
+            self.q_out[:] = self.q_raw
+            self.qd_out[:] = qd
+        return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
+
+    def _set_targets(self, t: float) -> bool:
+        """Load the tracker's targets into the tasks at time t; True when any target is held or stale."""
+        conf = self.configuration
+        held = False
+        for task in self.wrist_tasks:
+            s = self.tracker.sample(task.frame, t)
+            if s is None:
+                task.set_target_from_configuration(conf)
+                held = True
+                continue
+            task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
+            task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+            held |= s.held
+        for task in self.elbow_tasks:
+            s = self.tracker.sample(task.frame, t)
+            if s is None:
+                task.set_target_from_configuration(conf)
+                held = True
+                continue
+            task.set_target(s.p, s.v, check=False)
+            held |= s.held
+        return held or self.tracker.stale(t)
+
+    def _command(
+        self, status: str, residuals: list[float], iters: int, active: int, reason: str, t_start: float, t: float
+    ) -> JointCommand:
+        return JointCommand(
+            hdr=self.tracker.hdr if self.tracker.started else Header(0, 0.0, 0),
+            solver_id=self.config.solver_id,
+            algo=self.config.algo,
+            joints=self._joints,
+            q=self.q_out.copy(),
+            qd=self.qd_out.copy(),
+            residuals=list(residuals),
+            solve_ms=(time.perf_counter() - t_start) * 1e3,
+            status=status,
+            iters=int(iters),
+            active=int(active),
+            reason=reason,
+            t_cmd=t,
+        )

@@ -1,0 +1,148 @@
+"""HQP-Nullspace (seed 000, section 3; ARCHITECTURE "Solving"): strict priorities by null-space recursion.
+
+    x = 0; Z = I
+    for each level k:
+        z* = argmin ||A_k (x + Z z) - b_k||^2 + eps ||z||^2   s.t.  lb <= x + Z z <= ub
+        x = x + Z z*
+        Z = Z null(A_k Z)        (column-pivoted QR, rank-revealing)
+
+Each level only moves inside the null space of every level above it, so it can
+never change their task values; the joint bounds are hard at every level, so a
+level that cannot be met keeps its least-squares optimum. The optimal task
+value ``A_k x*`` of a convex least-squares level is unique, hence its optimal
+set is exactly ``{x in box : A_k x = A_k x*}``, which ``x + Z null(A_k Z) w``
+plus the box parametrises: the recursion is the exact lexicographic optimum.
+
+Shortcut: the unconstrained minimum-norm solution of a level comes for free
+from the QR that gives the null space; when it respects the bounds it is the
+constrained optimum too and no QP is solved.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from services.solver.algorithm import (
+    QP_BOUND_TOL,
+    Algorithm,
+    Solution,
+    clip,
+    count_active,
+    level_residuals,
+    level_value,
+    polish,
+    within,
+)
+from services.solver.linalg import split_row_space
+from services.solver.qp import QpBackend
+
+#: Regularisation of the one retry of a level whose QP failed.
+RETRY_EPS = 1e-6
+
+
+class HqpNullspace(Algorithm):
+    """Null-space recursive HQP.
+
+    Args:
+        backend: QP backend for levels whose unconstrained optimum breaks a bound.
+        eps: damping of each level (one value, or one per level; the last repeats): ``eps ||z||^2`` in
+            its objective (the shortcut and the
+            QP solve the same damped problem). Tiny (1e-9) gives the exact lexicographic
+            optimum; the service uses about 1e-4 so near-singular directions of a level do
+            not ask for huge joint velocities.
+        shortcut: try the unconstrained optimum before calling the QP.
+        polish: refine each QP solution on its active set (see ``polish``); default: only for
+            PIQP, whose interior-point answer is tolerance-limited (DAQP's active set is exact).
+    """
+
+    name = "hqp-nullspace"
+
+    def __init__(
+        self,
+        backend: QpBackend,
+        eps: float | Sequence[float] = 1e-9,
+        shortcut: bool = True,
+        polish: bool | None = None,
+    ) -> None:
+        super().__init__()
+        self.polish = backend.name == "piqp" if polish is None else polish
+        self.backend = backend
+        self.eps = eps
+        self.shortcut = shortcut
+
+    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+        n = lb.shape[0]
+        x = np.zeros(n)
+        Z: np.ndarray | None = None  # None means identity (first level)
+        iters = calls = 0
+        reason = ""
+        for k, (A, b) in enumerate(zip(As, bs)):
+            if Z is not None and Z.shape[1] == 0:
+                break  # no freedom left for lower levels
+            if Z is None:
+                M, c = A, b
+            else:
+                M, c = A @ Z, b - A @ x
+            split = split_row_space(M)
+            xt = None
+            if self.shortcut:
+                z = split.lstsq(c, self._eps(k))
+                xt = x + (z if Z is None else Z @ z)
+                if not within(xt, lb, ub):
+                    xt = None
+            if xt is None:
+                z, its, status = self._level_qp(M, c, Z, lb - x, ub - x, k)
+                iters += its
+                calls += 1
+                if z is None:
+                    if k == 0:
+                        return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {status}")
+                    reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
+                    break
+                xt = x + (z if Z is None else Z @ z)
+                # Within the QP's own tolerance: snap onto the box.
+                if not within(xt, lb, ub, QP_BOUND_TOL):
+                    reason = f"level {k + 1} QP left the box by {self._violation(xt, lb, ub):.2e}"
+                    if k == 0:
+                        return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, reason)
+                    break
+                clip(xt, lb, ub)
+            x = xt
+            N = split.null_basis
+            Z = N if Z is None else Z @ N
+        return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
+
+    def _level_qp(self, M, c, Z, lo, hi, k):
+        """QP of one level in z: ``min ||M z - c||^2 + eps ||z||^2``, ``lo <= Z z <= hi`` (Z None = identity).
+
+        A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
+        once with ``RETRY_EPS`` regularisation and polished, which removes that bias again.
+
+        Returns:
+            (z or None, iterations, status text).
+        """
+        iters = 0
+        status = ""
+        eps0 = self._eps(k)
+        for eps, refine in ((eps0, self.polish), (max(RETRY_EPS, eps0), True)):
+            H = M.T @ M
+            H.flat[:: H.shape[0] + 1] += eps
+            f = -(M.T @ c)
+            if Z is None:
+                r = self.backend.solve(H, f, lb=lo, ub=hi, key=f"ns{k}")
+            else:
+                r = self.backend.solve(H, f, G=Z, gl=lo, gu=hi, key=f"ns{k}")
+            iters += r.iters
+            status = r.status
+            if r.ok:
+                return (polish(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
+        return None, iters, status
+
+    def _eps(self, k: int) -> float:
+        return level_value(self.eps, k)
+
+    @staticmethod
+    def _violation(x: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
+        return float(max(np.max(lb - x), np.max(x - ub), 0.0))

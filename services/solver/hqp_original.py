@@ -1,0 +1,93 @@
+"""HQP-Original (seed 000, eq. 5): the stacked cascade.
+
+Level k is solved over all n variables:
+
+    min ||A_k x - b_k||^2 + eps ||x||^2
+    s.t. lb <= x <= ub                                  (5c)
+         A_aug x = A_aug x*_{k-1}                       (5d)
+
+where ``A_aug`` stacks the task matrices of every higher level and
+``x*_{k-1}`` is the previous level's optimum. The rows of ``A_aug`` are
+linearly dependent as soon as the stack is taller than its rank (the wrist
+and elbow rows together exceed 17), which equality-constrained QP solvers
+dislike, so (5d) is passed as ``E x = E x*`` with ``E`` an orthonormal basis
+of the row space of ``A_aug`` (column-pivoted QR): the same set of x, no
+redundant rows. There are no soft inequalities (5b, 5e) in this problem.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from services.solver.algorithm import (
+    QP_BOUND_TOL,
+    Algorithm,
+    Solution,
+    clip,
+    count_active,
+    level_residuals,
+    level_value,
+    polish,
+    within,
+)
+from services.solver.hqp_nullspace import RETRY_EPS
+from services.solver.linalg import split_row_space
+from services.solver.qp import QpBackend
+
+
+class HqpOriginal(Algorithm):
+    """Stacked-equality cascade HQP.
+
+    Args:
+        backend: QP backend (every level is a QP).
+        eps: damping ``eps ||x||^2`` of each level (one value or one per level, the last repeats);
+            the QP itself gets at least the backend's regularisation, which polish removes again.
+        polish: refine each QP solution on its active set.
+    """
+
+    name = "hqp-original"
+
+    def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, polish: bool = True):
+        super().__init__()
+        self.polish = polish
+        self.backend = backend
+        self.eps = eps
+
+    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+        n = lb.shape[0]
+        x = np.zeros(n)
+        iters = calls = 0
+        reason = ""
+        for k, (A, b) in enumerate(zip(As, bs)):
+            eps = level_value(self.eps, k)
+            H = A.T @ A
+            H.flat[:: n + 1] += max(eps, self.backend.regularization)
+            f = -(A.T @ b)
+            E = e = None
+            if k > 0:
+                split = split_row_space(np.vstack(As[:k]))
+                if split.rank >= n:
+                    break  # higher levels pin every variable
+                E = np.ascontiguousarray(split.Q[:, : split.rank].T)
+                e = E @ x
+            r = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+            if not r.ok:
+                # Degenerate stacks can be called infeasible by an active-set solver: one retry,
+                # better conditioned; the polish below removes the extra regularisation's bias.
+                H.flat[:: n + 1] += RETRY_EPS
+                r2 = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+                r2.iters += r.iters
+                r = r2
+            iters += r.iters
+            calls += 1
+            if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL):
+                why = r.status if not r.ok else "QP left the box"
+                if k == 0:
+                    return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
+                reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
+                break
+            xs = polish(A, b, r.x, None, lb, ub, E, e, eps=eps) if self.polish else r.x
+            x = clip(np.array(xs), lb, ub)
+        return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)

@@ -1,0 +1,75 @@
+"""Weighted QP (the "traditional QP" of seed 000): every level in one objective.
+
+    min sum_k w_k^2 ||A_k x - b_k||^2 + eps ||x||^2    s.t.  lb <= x <= ub
+
+Priorities are only as strict as the weights make them: a lower level can pull
+a higher one off its target, which is what the HQPs are compared against.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.linalg import lapack
+
+from services.solver.algorithm import (
+    QP_BOUND_TOL,
+    Algorithm,
+    Solution,
+    clip,
+    count_active,
+    level_residuals,
+    level_value,
+    within,
+)
+from services.solver.qp import QpBackend
+
+
+class WeightedQp(Algorithm):
+    """One weighted QP over all levels.
+
+    Args:
+        backend: QP backend.
+        level_weights: w_k per level (missing levels reuse the last weight).
+        eps: Tikhonov regularisation.
+        shortcut: use the unconstrained optimum when it respects the bounds.
+    """
+
+    name = "wqp"
+
+    def __init__(
+        self,
+        backend: QpBackend,
+        level_weights: Sequence[float] = (1.0, 0.3, 1.0),
+        eps: float | Sequence[float] = 1e-9,
+        shortcut: bool = True,
+    ):
+        super().__init__()
+        if not level_weights or any(w <= 0 for w in level_weights):
+            raise ValueError(f"level weights must be > 0, got {level_weights}")
+        self.backend = backend
+        self.level_weights = tuple(float(w) for w in level_weights)
+        self.eps = level_value(eps, 0)  # one objective: the first level's damping
+        self.shortcut = shortcut
+
+    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+        n = lb.shape[0]
+        H = np.zeros((n, n))
+        f = np.zeros(n)
+        for k, (A, b) in enumerate(zip(As, bs)):
+            w2 = self.level_weights[min(k, len(self.level_weights) - 1)] ** 2
+            H += w2 * (A.T @ A)
+            f -= w2 * (A.T @ b)
+        H.flat[:: n + 1] += self.eps
+        if self.shortcut:
+            _c, x, info = lapack.dposv(H, -f)
+            if info == 0 and within(x, lb, ub):
+                return Solution(x, level_residuals(As, bs, x), True, 0, 0, count_active(x, lb, ub))
+        r = self.backend.solve(H, f, lb=lb, ub=ub, key="wqp")
+        if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL):
+            why = r.status if not r.ok else "QP left the box"
+            zero = np.zeros(n)
+            return Solution(zero, level_residuals(As, bs, zero), False, r.iters, 1, 0, f"QP: {why}")
+        x = clip(r.x, lb, ub)
+        return Solution(x, level_residuals(As, bs, x), True, r.iters, 1, count_active(x, lb, ub))

@@ -1,0 +1,87 @@
+"""Robot configuration: joint positions plus the kinematics computed from them.
+
+A :class:`Configuration` wraps a :class:`~shared.robot.pinocchio_model.RobotModel`
+(reduced to the controlled joints, base frame = pelvis) and its own Pinocchio
+data. :meth:`Configuration.update` runs one ``computeJointJacobians`` and one
+``updateFramePlacements``; every frame pose and Jacobian afterwards is a cheap
+read of that data, so building all tasks of a tick costs one kinematics pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from shared.kinematics.exceptions import InvalidConfigurationError, InvalidFrameError
+from shared.robot.pinocchio_model import RobotModel
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class Configuration:
+    """Joint configuration q (n,) [rad] of a reduced robot model and its kinematics.
+
+    Args:
+        robot: reduced model (``build_robot_model``).
+        q: initial configuration (n,) [rad]; the rest pose when None.
+    """
+
+    def __init__(self, robot: RobotModel, q: np.ndarray | None = None):
+        self.robot = robot
+        self.model = robot.model
+        self.data = robot.model.createData()
+        self.nv = robot.model.nv
+        self.q = np.array(robot.q_rest if q is None else q, dtype=float)
+        self._frame_cache: dict[str, int] = {}
+        self.update(self.q)
+
+    def frame_id(self, name: str) -> int:
+        """Pinocchio frame id of a target name (``left_wrist``...) or raw frame name."""
+        fid = self._frame_cache.get(name)
+        if fid is None:
+            try:
+                fid = self.robot.frame_id(name)
+            except KeyError:
+                known = list(self.robot.frame_ids) + [f.name for f in self.model.frames]
+                raise InvalidFrameError(name, known) from None
+            self._frame_cache[name] = fid
+        return fid
+
+    def update(self, q: np.ndarray | None = None) -> None:
+        """Set q (n,) [rad] (keep the current one when None) and recompute joint Jacobians and frame poses."""
+        if q is not None:
+            if q.shape != (self.nv,):
+                raise InvalidConfigurationError(f"q has shape {q.shape}, expected ({self.nv},)")
+            self.q[:] = q
+        pin.computeJointJacobians(self.model, self.data, self.q)
+        pin.updateFramePlacements(self.model, self.data)
+
+    def check(self) -> None:
+        """Raise InvalidConfigurationError when q holds NaN or inf."""
+        if not np.all(np.isfinite(self.q)):
+            raise InvalidConfigurationError(f"q is not finite: {self.q}")
+
+    def get_frame_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Pose of a frame in the base (pelvis) frame.
+
+        Returns:
+            p (3,) [m] and R (3, 3), views into the data (copy to keep).
+        """
+        oMf = self.data.oMf[self.frame_id(name)]
+        return oMf.translation, oMf.rotation
+
+    def get_frame_jacobian(self, name: str) -> np.ndarray:
+        """(6, n) Jacobian of a frame, LOCAL_WORLD_ALIGNED: rows [linear (3) [m/rad]; angular (3) [rad/rad]].
+
+        The linear rows give the velocity of the frame origin expressed in the base
+        frame; the angular rows the angular velocity in the base frame.
+        """
+        return pin.getFrameJacobian(self.model, self.data, self.frame_id(name), _LWA)
+
+    def integrate(self, v: np.ndarray, dt: float) -> np.ndarray:
+        """q + v dt on the configuration manifold: (n,) [rad] for v (n,) [rad/s], dt [s]."""
+        return pin.integrate(self.model, self.q, v * dt)
+
+    def integrate_inplace(self, v: np.ndarray, dt: float) -> None:
+        """Integrate v (n,) [rad/s] over dt [s] and update the kinematics."""
+        self.update(self.integrate(v, dt))

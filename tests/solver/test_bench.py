@@ -1,0 +1,47 @@
+"""`mimic bench solvers` report shape on a short run (figures themselves come from the command, not tests)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from services.solver import bench
+from shared.robot.pinocchio_model import build_robot_model
+
+
+def test_bench_report_has_the_agreed_shape(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    out = tmp_path / "bench.json"
+    args = parser.parse_args(
+        ["--json", str(out), "--seconds", "0.3", "--algos", "hqp-nullspace", "wqp", "--warmup", "10"]
+    )
+    assert bench.main(args) == 0
+    report = json.loads(out.read_text())
+    assert json.loads(capsys.readouterr().out) == report
+    combos = {(r["algo"], r["qp"], r["dof"]) for r in report["results"]}
+    assert combos == {(a, q, d) for a in ("hqp-nullspace", "wqp") for q in ("piqp", "daqp") for d in (14, 17)}
+    for r in report["results"]:
+        assert 0 < r["tick_ms"]["p50"] <= r["tick_ms"]["p99"]
+        assert r["ticks"] > 100
+    mink = report["mink"]
+    assert mink["dof"] >= 17 and 0 < mink["tick_ms"]["p50"] <= mink["tick_ms"]["p99"]
+    assert report["paper_ms"]["hqp-nullspace"] == 38.9
+    assert report["goal"]["algo"] == "hqp-nullspace" and report["goal"]["dof"] == 17
+
+
+def test_npz_targets_round_trip(tmp_path):
+    robot = build_robot_model()
+    frames = bench.synthetic_targets(robot, 0.1)
+    arrays = {"t": np.array([f.hdr.stamp for f in frames])}
+    for name in frames[0].targets:
+        for key in ("p", "q", "v", "w"):
+            arrays[f"{name}_{key}"] = np.array([getattr(f.targets[name], key) for f in frames])
+    path = tmp_path / "targets.npz"
+    np.savez(path, **arrays)
+    loaded = bench.load_targets(path)
+    assert len(loaded) == len(frames)
+    np.testing.assert_allclose(loaded[3].targets["left_wrist"].p, frames[3].targets["left_wrist"].p)
+    np.testing.assert_allclose(loaded[3].targets["right_elbow"].v, frames[3].targets["right_elbow"].v)

@@ -1,0 +1,239 @@
+"""SolverCore in closed loop on the real G1 kinematics (Pinocchio): limits, start-up, holds, failures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from services.solver.core import SolverConfig, SolverCore
+from services.solver.qp import DaqpBackend, QpResult
+from shared.messages import Header, Target, TaskTargets
+from shared.robot.pinocchio_model import build_robot_model
+
+DT = 0.002
+
+
+@pytest.fixture(scope="module")
+def robot17():
+    return build_robot_model()
+
+
+@pytest.fixture(scope="module")
+def robot14():
+    return build_robot_model(with_waist=False)
+
+
+def quat_wxyz(R: np.ndarray) -> np.ndarray:
+    q = pin.Quaternion(R)
+    return np.array([q.w, q.x, q.y, q.z])
+
+
+def targets_from_q(robot, q, seq=0, stamp=0.0, valid=True, offset=None, vel=None) -> TaskTargets:
+    offset = np.zeros(3) if offset is None else offset
+    vel = np.zeros(3) if vel is None else vel
+    poses = robot.frame_poses(q)
+    return TaskTargets(
+        Header(seq, stamp),
+        {
+            n: Target(poses[n][0] + offset, quat_wxyz(poses[n][1]), vel.copy(), np.zeros(3), valid)
+            for n in ("left_wrist", "right_wrist", "left_elbow", "right_elbow")
+        },
+    )
+
+
+def assert_safe(robot, cmd, q_prev):
+    assert np.all(np.isfinite(cmd.q)) and np.all(np.isfinite(cmd.qd))
+    assert np.all(cmd.q >= robot.lower - 1e-12) and np.all(cmd.q <= robot.upper + 1e-12)
+    assert np.all(np.abs(cmd.qd) <= robot.vmax + 1e-9)
+    assert np.all(np.abs(cmd.q - q_prev) <= robot.vmax * DT + 1e-9)
+
+
+ALGOS = [
+    ("hqp-nullspace", "piqp"),
+    ("hqp-nullspace", "daqp"),
+    ("hqp-original", "daqp"),
+    ("wqp", "piqp"),
+    ("clik-nullspace", "piqp"),
+    ("dls", "piqp"),
+]
+
+
+@pytest.mark.parametrize(("algo", "qp"), ALGOS)
+@pytest.mark.parametrize("smoothing", [True, False], ids=["smooth", "raw"])
+def test_closed_loop_never_leaves_limits_with_unreachable_and_jumping_targets(robot17, algo, qp, smoothing):
+    robot = robot17
+    core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, smoothing=smoothing))
+    rng = np.random.default_rng(5)
+    poses = robot.random_configurations(4, rng)
+    q_prev = robot.q_rest.copy()
+    statuses = set()
+    for k in range(240):
+        msg = None
+        if k % 5 == 0:
+            phase = (k // 60) % 4
+            if phase == 3:
+                # Unreachable: everything 2 m away.
+                msg = targets_from_q(robot, poses[0], k, k * DT, offset=np.array([2.0, 0.0, 0.0]))
+            else:
+                # Jumps between random poses every 60 ticks.
+                msg = targets_from_q(robot, poses[phase], k, k * DT)
+        cmd = core.step(msg, None, k * DT)
+        assert cmd.status != "failed", cmd.reason
+        assert_safe(robot, cmd, q_prev)
+        q_prev = cmd.q
+        statuses.add(cmd.status)
+    assert "infeasible" in statuses  # the unreachable phase is reported
+    assert core.counts["safety_clamps"] == 0  # the algorithm itself respected the bounds
+
+
+def moving_targets(robot, q_of_t, t, k, elbow_offset=None) -> TaskTargets:
+    """Targets by forward kinematics with velocities from central differences of the motion."""
+    elbow_offset = np.zeros(3) if elbow_offset is None else elbow_offset
+    h = 1e-4
+    now, ahead, behind = (
+        robot.frame_poses(q_of_t(t)),
+        robot.frame_poses(q_of_t(t + h)),
+        robot.frame_poses(q_of_t(t - h)),
+    )
+    out = {}
+    for n in ("left_wrist", "right_wrist", "left_elbow", "right_elbow"):
+        v = (ahead[n][0] - behind[n][0]) / (2 * h)
+        w = pin.log3(ahead[n][1] @ behind[n][1].T) / (2 * h)
+        off = elbow_offset if "elbow" in n else np.zeros(3)
+        out[n] = Target(now[n][0] + off, quat_wxyz(now[n][1]), v, w)
+    return TaskTargets(Header(k, t), out)
+
+
+def test_hqp_nullspace_keeps_wrists_on_target_when_elbows_conflict_and_wqp_does_not(robot14):
+    robot = robot14
+    rng = np.random.default_rng(11)
+    amp = 0.4 * rng.uniform(-1, 1, robot.nq)
+
+    def q_of_t(t):
+        return robot.clip(robot.q_rest + amp * np.sin(2.0 * t))
+
+    errs = {}
+    for algo in ("hqp-nullspace", "wqp"):
+        core = SolverCore(robot, SolverConfig(algo=algo, qp="daqp"))
+        worst = 0.0
+        for k in range(500):
+            t = k * DT
+            # Elbow targets 8 cm off: they cannot be met together with the wrists.
+            msg = moving_targets(robot, q_of_t, t, k, np.array([0.0, 0.0, 0.08])) if k % 5 == 0 else None
+            cmd = core.step(msg, None, t)
+            if k > 250:
+                p = robot.frame_poses(cmd.q)["left_wrist"][0]
+                worst = max(worst, float(np.linalg.norm(p - robot.frame_poses(q_of_t(t))["left_wrist"][0])))
+        errs[algo] = worst
+    assert errs["hqp-nullspace"] < 2e-3  # [m]
+    assert errs["wqp"] > 2.0 * errs["hqp-nullspace"]
+
+
+@pytest.mark.parametrize("robot_fixture", ["robot17", "robot14"])
+def test_start_mid_stream_from_measured_state_without_jump(request, robot_fixture):
+    robot = request.getfixturevalue(robot_fixture)
+    rng = np.random.default_rng(3)
+    q_meas = robot.random_configurations(1, rng)[0]
+    core = SolverCore(robot, SolverConfig())
+    target_q = robot.random_configurations(1, rng)[0]
+    cmd = core.step(targets_from_q(robot, target_q), q_meas, 10.0)
+    assert np.all(np.abs(cmd.q - q_meas) <= robot.vmax * DT + 1e-9)
+    assert cmd.status in ("ok", "infeasible")
+
+
+def test_holds_start_pose_until_targets_arrive(robot17):
+    core = SolverCore(robot17, SolverConfig())
+    q_meas = robot17.q_rest + 0.1
+    for k in range(5):
+        cmd = core.step(None, q_meas if k == 0 else None, k * DT)
+        assert cmd.status == "init"
+        np.testing.assert_allclose(cmd.q, robot17.clip(q_meas))
+        np.testing.assert_array_equal(cmd.qd, 0.0)
+
+
+def test_invalid_and_stale_targets_are_held(robot17):
+    robot = robot17
+    core = SolverCore(robot, SolverConfig(target_timeout=0.1))
+    q_goal = robot.q_rest + 0.05
+    core.step(targets_from_q(robot, q_goal, 0, 0.0), None, 0.0)
+    bad = targets_from_q(robot, q_goal, 1, 0.01, valid=False, offset=np.array([0.5, 0, 0]))
+    cmd = core.step(bad, None, DT)
+    assert cmd.status == "held"
+    sample = core.tracker.sample("left_wrist", DT)
+    np.testing.assert_allclose(sample.p, robot.frame_poses(q_goal)["left_wrist"][0])  # not the invalid one
+    for k in range(2, 200):
+        cmd = core.step(None, None, k * DT)
+    assert cmd.status == "held"  # no message for 0.4 s > timeout
+    # Held targets are still tracked: the wrist converged to the last valid target.
+    p = robot.frame_poses(cmd.q)["left_wrist"][0]
+    assert np.linalg.norm(p - robot.frame_poses(q_goal)["left_wrist"][0]) < 1e-3
+
+
+def test_target_velocity_is_fed_forward_between_frames(robot17):
+    robot = robot17
+    core = SolverCore(robot, SolverConfig(target_horizon=0.05))
+    v = np.array([0.0, 0.1, 0.0])
+    core.step(targets_from_q(robot, robot.q_rest, 0, 0.0, vel=v), None, 0.0)
+    s = core.tracker.sample("left_elbow", 0.02)
+    np.testing.assert_allclose(s.p, robot.frame_poses(robot.q_rest)["left_elbow"][0] + v * 0.02)
+    np.testing.assert_allclose(s.v, v)
+    s = core.tracker.sample("left_elbow", 0.2)  # beyond the horizon: frozen, at rest
+    np.testing.assert_allclose(s.p, robot.frame_poses(robot.q_rest)["left_elbow"][0] + v * 0.05)
+    np.testing.assert_array_equal(s.v, 0.0)
+
+
+class _FailingBackend(DaqpBackend):
+    """Fault injection: the QP solver reports failure on every call."""
+
+    def solve(self, *args, **kwargs):
+        res = super().solve(*args, **kwargs)
+        return QpResult(res.x * np.nan, False, res.iters, "injected failure")
+
+
+def test_failed_solve_holds_previous_safe_position(robot17):
+    robot = robot17
+    core = SolverCore(robot, SolverConfig(algo="hqp-nullspace", qp="daqp", smoothing=False))
+    core.step(targets_from_q(robot, robot.q_rest + 0.1), None, 0.0)
+    core.algorithm.backend = _FailingBackend()
+    core.algorithm.shortcut = False  # force the QP path
+    q_before = core.q_out.copy()
+    cmd = core.step(targets_from_q(robot, robot.q_rest + 0.3, 1, DT), None, DT)
+    assert cmd.status == "failed"
+    assert "injected failure" in cmd.reason
+    np.testing.assert_array_equal(cmd.q, q_before)
+    np.testing.assert_array_equal(cmd.qd, 0.0)
+    assert core.counts["failed"] == 1
+
+
+def test_resync_when_robot_and_command_diverge(robot17):
+    robot = robot17
+    core = SolverCore(robot, SolverConfig(resync_threshold=0.2))
+    core.step(targets_from_q(robot, robot.q_rest), None, 0.0)
+    far = robot.clip(robot.q_rest + 0.5)
+    cmd = core.step(None, far, DT)
+    assert core.counts["resyncs"] == 1
+    assert np.all(np.abs(cmd.q - far) <= robot.vmax * DT + 1e-9)
+
+
+def test_command_carries_diagnostics(robot17):
+    core = SolverCore(robot17, SolverConfig(algo="hqp-nullspace", qp="piqp", solver_id="shadow"))
+    cmd = core.step(targets_from_q(robot17, robot17.q_rest + 0.2), None, 0.0)
+    assert cmd.solver_id == "shadow" and cmd.algo == "hqp-nullspace"
+    assert len(cmd.residuals) == 3 and all(np.isfinite(cmd.residuals))
+    assert cmd.solve_ms > 0
+    assert cmd.joints == list(robot17.joint_names)
+    decoded = type(cmd).decode(cmd.encode())
+    np.testing.assert_allclose(decoded.q, cmd.q)
+
+
+def test_bad_configuration_is_rejected(robot17):
+    with pytest.raises(ValueError, match="unknown algorithm"):
+        SolverCore(robot17, SolverConfig(algo="nope"))
+    with pytest.raises(ValueError, match="unknown QP backend"):
+        SolverCore(robot17, SolverConfig(qp="cvx"))
+    with pytest.raises(ValueError, match="rate"):
+        SolverConfig(rate=0.0)
+    core = SolverCore(robot17, SolverConfig())
+    with pytest.raises(ValueError, match="measured q"):
+        core.step(None, np.zeros(3), 0.0)
