@@ -79,6 +79,7 @@ class SolverConfig:
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     infeasible_tol: float = 1e-3
+    wrist_orientation_level: int = 1
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate <= 10000.0:
@@ -104,10 +105,22 @@ class SolverCore:
         self.dt = cfg.dt
         self.n = robot.nq
         self.configuration = Configuration(robot)
-        self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS]
         self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, cfg.gain) for e in ELBOWS]
         self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
-        self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
+        if cfg.wrist_orientation_level == 1:
+            # The paper's hierarchy: full wrist poses, then elbows, then posture.
+            self.wrist_tasks = [
+                FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS
+            ]
+            self.orientation_tasks: list[FrameTask] = []
+            self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
+        else:
+            # Wrist positions, elbows, then wrist orientations: position and swivel use the
+            # shoulder/elbow, orientation what is left (mostly the wrist joints), so
+            # independently mapped orientations cannot spoil the wrist and elbow positions.
+            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, cfg.gain) for w in WRISTS]
+            self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS]
+            self.levels = [self.wrist_tasks, self.elbow_tasks, self.orientation_tasks, [self.posture_task]]
         self.limits = [ConfigurationLimit(robot.lower, robot.upper), VelocityLimit(robot.vmax)]
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.smoother = QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks) if cfg.smoothing else None
@@ -213,8 +226,16 @@ class SolverCore:
                 held = True
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
-            task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+            if not self.orientation_tasks:
+                task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
             held |= s.held
+        for task in self.orientation_tasks:
+            s = self.tracker.sample(task.frame, t)
+            if s is None:
+                task.set_target_from_configuration(conf)
+                continue
+            task.set_target(s.p, s.R, s.v, s.w, check=False)
+            task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
         for task in self.elbow_tasks:
             s = self.tracker.sample(task.frame, t)
             if s is None:

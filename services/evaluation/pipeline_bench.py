@@ -1,0 +1,209 @@
+"""``mimic bench pipeline``: the real stack on loopback, driven at a fixed mocap rate.
+
+It starts the router, retarget, solver and sim as real processes (the same
+commands ``mimic up`` takes from docker-compose.yml), publishes HumanFrames at
+``--rate`` Hz for ``--duration`` seconds from its own session, and timestamps
+the first arrival of each ``seq`` at every hop (targets, command, robot
+state) on one clock. Latency is ``arrival - hdr.t0``; a frame is dropped at a
+hop when its ``seq`` never shows up there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from services.launcher.stack import load_stack, local_environment
+from services.launcher.supervisor import Supervisor
+from shared.bus import bus_args, open_session
+from shared.keys import Keys
+from shared.messages import JointCommand, RobotState, ServiceStatus, TaskTargets
+
+log = logging.getLogger("mimic.bench.pipeline")
+HOPS = ("retarget", "solver", "sim")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rate", type=float, default=1000.0, help="mocap frames per second [Hz]")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds of publishing")
+    p.add_argument("--json", default=None, help="write the result here as JSON (also printed)")
+    p.add_argument("--port", type=int, default=0, help="router port (default: a free one)")
+    p.add_argument("--algo", default="hqp-nullspace")
+    p.add_argument("--solver-args", default="", help="extra solver flags, e.g. '--qp daqp'")
+    p.add_argument("--sim-args", default="", help="extra sim flags")
+    p.add_argument("--warmup", type=float, default=1.0, help="seconds of frames before measuring")
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Arrivals:
+    """First arrival time [ns] of each seq at one hop, plus the seq's t0."""
+
+    def __init__(self) -> None:
+        self.first: dict[int, int] = {}
+        self.lock = threading.Lock()
+
+    def add(self, seq: int, now: int) -> None:
+        with self.lock:
+            self.first.setdefault(seq, now)
+
+
+def _frames(n_frames: int, rate: float):
+    """HumanFrame factory from the bundled demo motion, resampled to ``rate``."""
+    from services.ingest.clip import load_clip
+    from services.ingest.demo_motion import generate_demo_clips
+
+    out = Path(tempfile.mkdtemp(prefix="mimic-bench-"))
+    clip = load_clip(generate_demo_clips(out)[0])
+    idx = (np.arange(n_frames) / rate * clip.fps).astype(int) % clip.n_frames
+    return clip, idx
+
+
+def run(args: argparse.Namespace) -> dict:
+    port = args.port or _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    session = f"bench{port}"
+    keys = Keys(session)
+    stack = load_stack(env={"MIMIC_SESSION": session, "SOLVER": args.algo})
+    sup = Supervisor(out=sys.stderr)
+    wanted = ["zenoh", "retarget", "solver", "sim"]
+    extra = {"solver": args.solver_args.split(), "sim": args.sim_args.split()}
+    n_total = int((args.duration + args.warmup) * args.rate)
+    clip, idx = _frames(n_total, args.rate)
+    arrivals = {h: _Arrivals() for h in HOPS}
+    statuses: dict[str, ServiceStatus] = {}
+    try:
+        for name in wanted:
+            spec = stack[name]
+            argv = [sys.executable, "-m", "services.cli", *spec.command[1:], *extra.get(name, [])]
+            env = local_environment(spec, endpoint)
+            env["MIMIC_SESSION"] = session
+            sup.start(name, argv, env)
+            if name == "zenoh":
+                time.sleep(0.8)
+        z = open_session(bus_args(connect=[endpoint], session=session))
+        subs = []
+
+        def hop(name: str, decode):
+            def cb(sample: zenoh.Sample) -> None:
+                now = time.time_ns()
+                try:
+                    arrivals[name].add(decode(sample.payload.to_bytes()).hdr.seq, now)
+                except Exception:
+                    pass
+
+            return cb
+
+        subs.append(z.declare_subscriber(keys.targets, hop("retarget", TaskTargets.decode)))
+        subs.append(z.declare_subscriber(keys.command("main"), hop("solver", JointCommand.decode)))
+        subs.append(z.declare_subscriber(keys.sim_state, hop("sim", RobotState.decode)))
+        subs.append(
+            z.declare_subscriber(
+                keys.all_status,
+                lambda s: statuses.__setitem__(str(s.key_expr), ServiceStatus.decode(s.payload.to_bytes())),
+            )
+        )
+        alive: set[str] = set()
+        tok = z.liveliness().declare_subscriber(
+            keys.all_alive, lambda s: alive.add(str(s.key_expr).split("/")[3]), history=True
+        )
+        deadline = time.monotonic() + 90
+        while not {"retarget", "solver", "sim"} <= alive:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"services not up: {sorted({'retarget', 'solver', 'sim'} - alive)}")
+            time.sleep(0.1)
+        time.sleep(0.5)
+        pub = z.declare_publisher(keys.mocap_frame, express=True)
+        t0_pub: dict[int, int] = {}
+        period = 1.0 / args.rate
+        start = time.monotonic()
+        late = 0
+        for k in range(n_total):
+            target = start + k * period
+            while True:
+                now = time.monotonic()
+                if now >= target:
+                    break
+                if target - now > 0.0015:
+                    time.sleep(target - now - 0.001)
+            if now - target > 5 * period:
+                late += 1
+            frame = clip.frame(int(idx[k]), seq=k)
+            frame.hdr.stamp = k * period
+            t0_pub[k] = frame.hdr.t0 = time.time_ns()
+            pub.put(frame.encode())
+        elapsed = time.monotonic() - start
+        time.sleep(1.5)
+        tok.undeclare()
+        for s in subs:
+            s.undeclare()
+        z.close()
+    finally:
+        sup.stop_all()
+
+    first = int(args.warmup * args.rate)
+    measured = range(first, n_total)
+    result: dict = {
+        "rate_hz": args.rate,
+        "achieved_rate_hz": n_total / elapsed,
+        "publisher_late_frames": late,
+        "sent": len(measured),
+        "algo": args.algo,
+    }
+    lat_ms: dict[str, list[float]] = {}
+    dropped: dict[str, int] = {}
+    for h in HOPS:
+        got = arrivals[h].first
+        lat_ms[h] = [(got[s] - t0_pub[s]) / 1e6 for s in measured if s in got]
+        dropped[h] = sum(1 for s in measured if s not in got)
+    e2e = lat_ms["sim"]
+    result["received"] = len(e2e)
+    result["dropped"] = dropped
+
+    def pct(v: list[float]) -> dict:
+        if not v:
+            return {"p50": None, "p99": None, "max": None}
+        return {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)), "max": float(np.max(v))}
+
+    result["latency_ms"] = pct(e2e)
+    result["hop_latency_ms"] = {h: pct(v) for h, v in lat_ms.items()}
+    # Per-hop increments: where the time goes.
+    inc = {}
+    prev = None
+    for h in HOPS:
+        if prev is None:
+            inc[h] = result["hop_latency_ms"][h]
+        else:
+            both = [s for s in measured if s in arrivals[h].first and s in arrivals[prev].first]
+            inc[h] = pct([(arrivals[h].first[s] - arrivals[prev].first[s]) / 1e6 for s in both])
+        prev = h
+    result["hop_increment_ms"] = inc
+    result["service_status"] = {
+        k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
+    }
+    return result
+
+
+def main(args: argparse.Namespace) -> int:
+    res = run(args)
+    text = json.dumps(res, indent=2)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(text)
+    sys.stdout.write(text + "\n")
+    return 0

@@ -1,0 +1,202 @@
+"""Offline evaluation: the services' own code path (retarget -> solve -> sim), no bus.
+
+For each clip the retargeter is calibrated the way the live service does it
+(from the operator's first frame, arms hanging), every mocap frame is
+retargeted once, and the solver runs at its control rate between frames
+exactly as the node does (targets delivered on arrival, extrapolated with
+their velocities in between). Optionally the MuJoCo sim follows the commands
+in lock-step.
+
+Errors are measured at every control tick against the reference the solver
+was given at that tick (the retargeted target, extrapolated from its frame
+with its velocity): "kinematic" uses the forward kinematics of the commanded
+joints, "sim" the poses MuJoCo achieved. A tick counts as *reachable* when the
+strict hierarchy (``hqp-nullspace``) meets the wrist level there (level-1
+residual below tolerance); the same tick mask is applied to every algorithm.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from services.ingest.clip import Clip, load_clip
+from services.retarget.retargeter import RetargetConfig, Retargeter
+from services.solver.core import SolverConfig, SolverCore
+from shared.messages import TARGET_NAMES, TaskTargets
+from shared.robot.pinocchio_model import RobotModel, build_robot_model
+
+log = logging.getLogger("mimic.eval")
+WRISTS = ("left_wrist", "right_wrist")
+ELBOWS = ("left_elbow", "right_elbow")
+REFERENCE_ALGO = "hqp-nullspace"
+
+
+@dataclass
+class Trace:
+    """Per-tick record of one algorithm on one clip.
+
+    Attributes:
+        t: (K,) solver time [s]. seq: (K,) seq of the latest frame.
+        ref_p: target -> (K, 3) reference [m]; ref_R: wrist -> (K, 3, 3).
+        kin_p / sim_p: target -> (K, 3) achieved [m]; kin_R / sim_R: wrist -> (K, 3, 3).
+        ref_ok: target -> (K,) reference valid (not held).
+        q, qd: (K, n) commanded joints [rad], [rad/s]. solve_ms: (K,). status: (K,) str.
+        res1: (K,) level-1 residual.
+    """
+
+    algo: str
+    t: np.ndarray
+    seq: np.ndarray
+    ref_p: dict[str, np.ndarray]
+    ref_R: dict[str, np.ndarray]
+    ref_ok: dict[str, np.ndarray]
+    kin_p: dict[str, np.ndarray]
+    kin_R: dict[str, np.ndarray]
+    q: np.ndarray
+    qd: np.ndarray
+    solve_ms: np.ndarray
+    status: np.ndarray
+    res1: np.ndarray
+    sim_p: dict[str, np.ndarray] = field(default_factory=dict)
+    sim_R: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
+    """Retarget every frame of a clip (frames the retargeter drops are left out)."""
+    out = []
+    for i in range(clip.n_frames):
+        tt = retargeter.step(clip.frame(i, seq=i, t0_ns=0))
+        if tt is not None:
+            out.append(tt)
+    return out
+
+
+def run_algorithm(
+    robot: RobotModel,
+    targets: list[TaskTargets],
+    algo: str,
+    qp: str = "piqp",
+    rate: float = 500.0,
+    sim: bool = False,
+    settle: float = 0.5,
+) -> Trace:
+    """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
+
+    Args:
+        targets: retargeted frames; ``hdr.stamp`` [s] is their arrival time.
+        settle: seconds the first frame is held before the clip plays, so the robot
+            can move from its rest pose to the operator's start pose (not scored).
+    """
+    core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate, solver_id="eval"))
+    core.reset(robot.q_rest)
+    simcore = None
+    if sim:
+        from services.sim.sim_core import SimConfig, SimCore
+
+        simcore = SimCore(robot.profile, SimConfig(solver_id="eval"))
+    dt = 1.0 / rate
+    stamps = np.array([tt.hdr.stamp for tt in targets]) + settle
+    t_end = stamps[-1] + 1.0 / 30.0
+    n_ticks = int(np.ceil(t_end / dt))
+    rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
+    ref_p = {n: [] for n in TARGET_NAMES}
+    ref_R = {n: [] for n in WRISTS}
+    ref_ok = {n: [] for n in TARGET_NAMES}
+    kin_p = {n: [] for n in TARGET_NAMES}
+    kin_R = {n: [] for n in WRISTS}
+    sim_p = {n: [] for n in TARGET_NAMES}
+    sim_R = {n: [] for n in WRISTS}
+    k_next = 0
+    first = targets[0]
+    for tick in range(n_ticks):
+        t = tick * dt
+        msg = None
+        if t < settle:
+            msg = first if tick == 0 else None
+        else:
+            while k_next < len(targets) and stamps[k_next] <= t + 1e-12:
+                msg = targets[k_next]
+                k_next += 1
+        cmd = core.step(msg, None, t)
+        if simcore is not None:
+            simcore.advance(cmd, dt)  # the sim maps commands by joint name
+        if t < settle:
+            continue
+        poses = robot.frame_poses(cmd.q)
+        for n in TARGET_NAMES:
+            s = core.tracker.sample(n, t)
+            ok = s is not None and not s.held
+            ref_ok[n].append(ok)
+            ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
+            kin_p[n].append(poses[n][0])
+            if n in ref_R:
+                ref_R[n].append(s.R if s is not None else np.eye(3))
+                kin_R[n].append(poses[n][1])
+        if simcore is not None:
+            for n, pose in simcore.frame_poses().items():
+                sim_p[n].append(pose.p)
+                if n in sim_R:
+                    sim_R[n].append(_quat_to_R(pose.q))
+        rec["t"].append(t - settle)
+        rec["seq"].append(cmd.hdr.seq)
+        rec["q"].append(cmd.q)
+        rec["qd"].append(cmd.qd)
+        rec["ms"].append(cmd.solve_ms)
+        rec["status"].append(cmd.status)
+        rec["res1"].append(cmd.residuals[0] if cmd.residuals else np.nan)
+
+    def arr(d):
+        return {k: np.asarray(v) for k, v in d.items() if len(v)}
+
+    return Trace(
+        algo=algo,
+        t=np.asarray(rec["t"]),
+        seq=np.asarray(rec["seq"]),
+        ref_p=arr(ref_p),
+        ref_R=arr(ref_R),
+        ref_ok=arr(ref_ok),
+        kin_p=arr(kin_p),
+        kin_R=arr(kin_R),
+        q=np.asarray(rec["q"]),
+        qd=np.asarray(rec["qd"]),
+        solve_ms=np.asarray(rec["ms"]),
+        status=np.asarray(rec["status"]),
+        res1=np.asarray(rec["res1"]),
+        sim_p=arr(sim_p),
+        sim_R=arr(sim_R),
+    )
+
+
+def _quat_to_R(q: np.ndarray) -> np.ndarray:
+    import pinocchio as pin
+
+    w, x, y, z = q
+    return pin.Quaternion(w, x, y, z).toRotationMatrix()
+
+
+def load_and_retarget(path: Path, robot: RobotModel, mode: str = "bounded") -> tuple[Clip, list[TaskTargets]]:
+    """Load a clip and retarget it with a freshly calibrated retargeter (as the live service does)."""
+    clip = load_clip(path)
+    retargeter = Retargeter(RetargetConfig(mode=mode, robot=str(robot.profile.source)), robot=_arms_model(robot))
+    t0 = time.perf_counter()
+    targets = clip_targets(clip, retargeter)
+    log.debug("%s: %d frames retargeted in %.2f s", clip.name, len(targets), time.perf_counter() - t0)
+    if not targets:
+        raise RuntimeError(f"{path}: no frame could be retargeted (rejects: {dict(retargeter.rejects)})")
+    return clip, targets
+
+
+_ARMS: dict[str, RobotModel] = {}
+
+
+def _arms_model(robot: RobotModel) -> RobotModel:
+    """The retargeter samples its workspace over the arms only (waist at rest), like the service."""
+    key = str(robot.profile.source)
+    if key not in _ARMS:
+        _ARMS[key] = build_robot_model(robot.profile, with_waist=False)
+    return _ARMS[key]
