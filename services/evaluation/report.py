@@ -122,16 +122,11 @@ def write_report(result: dict, traces: dict[tuple[str, str], Trace], out: Path) 
             > np.ptp(next(iter(per.values())).ref_p["right_wrist"], axis=0).sum()
             else "right"
         )
-        names = []
-        for kind, fn in (
-            ("wrist_xyz", lambda p, s=side: _xyz_plot(p, per, f"{s}_wrist", f"{clip}: {s} wrist x/y/z")),
-            ("elbow_xyz", lambda p, s=side: _xyz_plot(p, per, f"{s}_elbow", f"{clip}: {s} elbow x/y/z")),
-            ("wrist_rpy", lambda p, s=side: _rpy_plot(p, per, f"{s}_wrist", f"{clip}: {s} wrist r/p/y", True)),
-            ("elbow_3d", lambda p, s=side: _elbow_3d(p, per, f"{s}_elbow", f"{clip}: {s} elbow 3D")),
-        ):
-            name = f"{clip}_{kind}.png"
-            fn(out / name)
-            names.append(name)
+        names = [f"{clip}_{kind}.png" for kind in ("wrist_xyz", "elbow_xyz", "wrist_rpy", "elbow_3d")]
+        _xyz_plot(out / names[0], per, f"{side}_wrist", f"{clip}: {side} wrist x/y/z")
+        _xyz_plot(out / names[1], per, f"{side}_elbow", f"{clip}: {side} elbow x/y/z")
+        _rpy_plot(out / names[2], per, f"{side}_wrist", f"{clip}: {side} wrist r/p/y", True)
+        _elbow_3d(out / names[3], per, f"{side}_elbow", f"{clip}: {side} elbow 3D")
         figs[clip] = names
     _solve_bar(out / "solve_time.png", result["summary"], PAPER_MS)
 
