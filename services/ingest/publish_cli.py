@@ -56,6 +56,10 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
         t_wait = time.monotonic() + max(0.0, args.wait_subscriber)
         while not pub.matching_status.matching and time.monotonic() < t_wait and not stop.is_set():
             stop.wait(0.02)
+        if pub.matching_status.matching:
+            # The first match is often the router alone; give the routes to every subscriber
+            # behind it a moment so the opening frames are not lost.
+            stop.wait(min(0.5, args.wait_subscriber))
         svc.status.extra.update({"clip_fps": clip.fps, "clip_frames": clip.n_frames, "rate": args.rate})
         svc.log.info(
             "playing %s: %d frames at %.1f Hz x %.2f%s",

@@ -127,7 +127,9 @@ def main(args: argparse.Namespace) -> int:
         expected = _expected_alive([s.name for s in specs])
         deadline = time.monotonic() + args.ready_timeout
         while not expected <= monitor.alive_services():
-            sup.poll()
+            crashed = [n for n in sup.poll() if not args.restart]
+            if crashed:
+                raise RuntimeError(f"services exited during start-up: {crashed} (see their log lines above)")
             if stop.is_set() or time.monotonic() > deadline:
                 missing = sorted(expected - monitor.alive_services())
                 raise RuntimeError(f"services not up after {args.ready_timeout:.0f} s: {missing}")
@@ -140,7 +142,8 @@ def main(args: argparse.Namespace) -> int:
                 if stop.is_set():
                     break
                 name = f"play:{clip.stem}"[:24]
-                sup.start(name, _mimic_argv(["mimic", "publish", str(clip), "--rate", str(args.rate)]), base_env)
+                argv = ["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"]
+                sup.start(name, _mimic_argv(argv), base_env)
                 while sup.alive(name) and not stop.is_set():
                     sup.poll()
                     time.sleep(0.05)
@@ -179,7 +182,8 @@ def _joint_limits():
         from shared.robot.pinocchio_model import build_robot_model
 
         rm = build_robot_model()
-        return rm.lower - 1e-6, rm.upper + 1e-6
+        margin = rm.profile.limit_margin  # the URDF limits, not the solver's shrunk ones
+        return rm.lower - margin, rm.upper + margin
     except Exception as exc:  # the summary still works without limit checks
         log.warning("joint limits unavailable for the summary: %s", exc)
         return None, None
@@ -204,7 +208,10 @@ def _print_summary(s: dict, path: Path) -> None:
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
     lines.append(f"wrist error: mean {f(we.get('mean'), ' cm')}, max {f(we.get('max'), ' cm')}")
     lines.append(f"elbow error: mean {f(ee.get('mean'), ' cm')}, max {f(ee.get('max'), ' cm')}")
-    lines.append(f"max joint limit excess: {s.get('max_joint_limit_excess_rad', 0.0):.2e} rad")
+    lines.append(
+        f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"
+        f" simulated {s.get('max_joint_limit_excess_rad', 0.0):.2e} rad"
+    )
     lines.append(f"recording: {s.get('recording')}")
     lines.append(f"summary: {path}")
     # The summary is the command's product for the user, so it goes to stdout, not the log.

@@ -16,7 +16,7 @@ import numpy as np
 import zenoh
 
 from shared.keys import Keys
-from shared.messages import MessageError, RobotState, ServiceStatus, TaskTargets
+from shared.messages import JointCommand, MessageError, RobotState, ServiceStatus, TaskTargets
 
 
 def _pct(values: list[float], q: float) -> float | None:
@@ -27,8 +27,10 @@ class StackMonitor:
     """Pure accounting of what the bus carried (feed it decoded messages).
 
     Latency is measured from ``hdr.t0`` (frame entered the bus) to the arrival
-    of the first RobotState that carries that frame's ``seq``, i.e. the frame
-    has been retargeted, solved and applied in the simulation.
+    of the first RobotState that carries that frame's header, i.e. the frame
+    has been retargeted, solved and applied in the simulation. Tracking error
+    is the last RobotState of each frame (just before the next one) against
+    that frame's targets. Joint positions are checked against the URDF limits.
     """
 
     def __init__(self, max_pending: int = 4096):
@@ -36,7 +38,9 @@ class StackMonitor:
         self.frames_seen = 0
         self._targets: OrderedDict[int, TaskTargets] = OrderedDict()
         self._max_pending = max_pending
-        self._last_state_seq = -1
+        self._last_t0 = 0
+        self._last_state: RobotState | None = None
+        self.max_command_excess = 0.0
         self.latency_ms: list[float] = []
         self.wrist_err: list[float] = []
         self.elbow_err: list[float] = []
@@ -50,22 +54,39 @@ class StackMonitor:
         self.frames_seen += 1
 
     def on_targets(self, tt: TaskTargets) -> None:
-        self._targets[tt.hdr.seq] = tt
+        # Keyed by t0 (ns the frame entered the bus): unique even when a new clip restarts seq.
+        self._targets[tt.hdr.t0] = tt
         while len(self._targets) > self._max_pending:
             self._targets.popitem(last=False)
+
+    def on_command(self, cmd: JointCommand, lower: np.ndarray | None, upper: np.ndarray | None) -> None:
+        if lower is not None and upper is not None and len(cmd.q) == len(lower):
+            excess = float(np.max(np.maximum(cmd.q - upper, lower - cmd.q)))
+            self.max_command_excess = max(self.max_command_excess, excess)
 
     def on_state(
         self, st: RobotState, now_ns: int, lower: np.ndarray | None = None, upper: np.ndarray | None = None
     ) -> None:
         self.states_seen += 1
-        if lower is not None and upper is not None:
+        if lower is not None and upper is not None and len(st.q) == len(lower):
             excess = float(np.max(np.maximum(st.q - upper, lower - st.q)))
             self.max_joint_excess = max(self.max_joint_excess, excess)
-        if st.hdr.seq <= self._last_state_seq:
+        t0 = st.hdr.t0
+        if t0 <= 0 or t0 < self._last_t0:
+            return  # no frame behind it yet (solver still initialising), or an older frame
+        if t0 > self._last_t0:
+            # First state reflecting a new frame: that is the end-to-end latency; the previous
+            # frame's last state is how close the robot got to it.
+            self._score_last()
+            self._last_t0 = t0
+            self.latency_ms.append((now_ns - t0) / 1e6)
+        self._last_state = st
+
+    def _score_last(self) -> None:
+        st = self._last_state
+        if st is None:
             return
-        self._last_state_seq = st.hdr.seq
-        self.latency_ms.append((now_ns - st.hdr.t0) / 1e6)
-        tt = self._targets.get(st.hdr.seq)
+        tt = self._targets.get(st.hdr.t0)
         if tt is None:
             return
         for name, pose in st.frames.items():
@@ -76,6 +97,8 @@ class StackMonitor:
             (self.wrist_err if name.endswith("wrist") else self.elbow_err).append(err)
 
     def summary(self) -> dict:
+        self._score_last()
+        self._last_state = None
         services = {}
         for (svc, inst), st in sorted(self.status.items()):
             c = st.counts
@@ -86,6 +109,7 @@ class StackMonitor:
                 "rejected": c.get("rejected", 0),
                 "state": st.state,
                 "last_error": st.last_error,
+                "counts": dict(c),
             }
 
         def stats(v: list[float]) -> dict:
@@ -104,6 +128,7 @@ class StackMonitor:
             "wrist_err_cm": stats(self.wrist_err),
             "elbow_err_cm": stats(self.elbow_err),
             "max_joint_limit_excess_rad": self.max_joint_excess,
+            "max_command_limit_excess_rad": self.max_command_excess,
         }
 
 
@@ -122,6 +147,7 @@ class BusMonitor:
             session.declare_subscriber(keys.targets, self._guard(TaskTargets.decode, self.mon.on_targets)),
             session.declare_subscriber(keys.mocap_frame, lambda _s: self._locked(self.mon.on_frame)),
             session.declare_subscriber(keys.sim_state, self._on_state),
+            session.declare_subscriber(keys.all_commands, self._on_command),
             session.liveliness().declare_subscriber(keys.all_alive, self._on_alive, history=True),
         ]
 
@@ -146,6 +172,13 @@ class BusMonitor:
         except MessageError:
             return
         self._locked(self.mon.on_state, st, now, self._lower, self._upper)
+
+    def _on_command(self, sample: zenoh.Sample) -> None:
+        try:
+            cmd = JointCommand.decode(sample.payload.to_bytes())
+        except MessageError:
+            return
+        self._locked(self.mon.on_command, cmd, self._lower, self._upper)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         parsed = Keys.parse_alive(str(sample.key_expr))

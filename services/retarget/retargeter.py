@@ -30,12 +30,21 @@ from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import RobotProfile, load_profile
 
 from .calibration import Calibration, CalibrationError, anthropometric
+from .elbow import ArmGeometry, human_swivel
 from .mapping import MODES, AbsoluteMap, IncrementalMap
-from .orientation import OrientationMap, angular_velocity, matrix_to_quat, quat_to_matrix
+from .orientation import (
+    OrientationMap,
+    angular_velocity,
+    calibration_orientations,
+    matrix_to_quat,
+    quat_to_matrix,
+)
 from .velocity import LowPassVelocity
 from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
 
 log = logging.getLogger(__name__)
+ELBOW_PLACEMENTS: tuple[str, ...] = ("mapped", "swivel")
+ORIENTATION_REFERENCES: tuple[str, ...] = ("rest", "posture")
 
 
 @dataclass
@@ -57,6 +66,18 @@ class RetargetConfig:
             whose arm bones are all valid (the operator must start at rest, arms hanging).
         one_arm_after: auto-calibration frames with only one valid arm to skip before accepting one
             (the other arm is then mirrored; one-armed marker sets never show both).
+        elbow_placement: "mapped" (default, the paper): eqs. (1)-(3) per axis like the wrist, so the
+            wrist-elbow target distance follows the operator's forearm (0.10-0.15 m on the real clips),
+            not the robot's (0.18 m): not reachable together. "swivel" (recommended): elbow targets
+            at the robot's own arm lengths from its shoulder and the wrist target, on the side the
+            operator's elbow points to (:mod:`.elbow`). Incremental mode always maps elbows.
+        orientation_reference: the robot orientation ``W_R_U`` that eq. (4) pairs with the operator's
+            calibration orientation. "rest" (default, the paper read literally): the profile rest
+            pose (G1: elbows bent 1.2 rad), which is not the pose the operator calibrates in (arms
+            hanging, elbows nearly straight), so every orientation target carries that difference
+            (40-60 deg of wrist pitch and roll). "posture" (recommended): the robot's own posture
+            for the calibration targets (:func:`.orientation.calibration_posture`, wrist joints at
+            zero), so the operator's calibration pose maps onto a pose the robot takes.
     """
 
     mode: str = "bounded"
@@ -72,8 +93,16 @@ class RetargetConfig:
     resync_after: int = 30
     auto_calibrate: bool = True
     one_arm_after: int = 30
+    elbow_placement: str = "mapped"
+    orientation_reference: str = "rest"
 
     def __post_init__(self) -> None:
+        if self.elbow_placement not in ELBOW_PLACEMENTS:
+            raise ValueError(f"elbow placement {self.elbow_placement!r}; known: {list(ELBOW_PLACEMENTS)}")
+        if self.orientation_reference not in ORIENTATION_REFERENCES:
+            raise ValueError(
+                f"orientation reference {self.orientation_reference!r}; known: {list(ORIENTATION_REFERENCES)}"
+            )
         if self.mode not in MODES:
             raise ValueError(f"retarget mode {self.mode!r}; known: {list(MODES)}")
         if not self.gain > 0:
@@ -121,6 +150,12 @@ class Retargeter:
         rest = self.robot.frame_poses(self.robot.q_rest, names=TARGET_NAMES)
         #: target -> (p (3,), R (3, 3)) robot rest pose in the base frame
         self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
+        #: side -> robot arm geometry for the swivel elbow placement
+        self.arms = (
+            {s: ArmGeometry.measure(self.robot, s) for s in ("left", "right")}
+            if self.config.elbow_placement == "swivel" or self.config.orientation_reference == "posture"
+            else {}
+        )
         self.rejects: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_reject: tuple[str, str] | None = None
@@ -137,6 +172,7 @@ class Retargeter:
         """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
         self._last_seq: int | None = None
         self._last_stamp: float | None = None
+        self._source: str | None = None
         self._bad_in_row = 0
         self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
@@ -163,7 +199,11 @@ class Retargeter:
                     self.config.mode, calibration.rest[t], calibration.lower[t], calibration.upper[t],
                     ws.lower[t], ws.upper[t],
                 )  # fmt: skip
-            self._rot_map[t] = OrientationMap(quat_to_matrix(calibration.rest_q[t]), self.robot_rest[t][1])
+        ref = {t: self.robot_rest[t][1] for t in TARGET_NAMES}
+        if self.config.orientation_reference == "posture":
+            ref = calibration_orientations(self.robot, self.rest_targets(), self.arms or None)
+        for t in TARGET_NAMES:
+            self._rot_map[t] = OrientationMap(quat_to_matrix(calibration.rest_q[t]), ref[t])
         self._reset_stream()
         log.info("calibration installed (%s), mode %s", calibration.source, self.config.mode)
 
@@ -218,6 +258,12 @@ class Retargeter:
         """
         self.last_reject = None
         hdr = frame.hdr
+        if self._source is not None and frame.source != self._source:
+            # Another clip or device: its seq and clock start afresh, which is not disorder.
+            log.info("new source %r (was %r): new stream", frame.source, self._source)
+            self.counts["new_source"] += 1
+            self._reset_stream()
+        self._source = frame.source
         if not self._check_order(hdr):
             return None
         dt = None if self._last_stamp is None else hdr.stamp - self._last_stamp
@@ -239,12 +285,30 @@ class Retargeter:
             self._reject("uncalibrated", "no calibration (give one or enable auto_calibrate)")
             return None
         self.counts["frames"] += 1
-        targets = {}
-        for t in TARGET_NAMES:
-            targets[t] = self._target(t, frame, dt)
+        targets: dict[str, Target] = {}
+        for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
+            targets[t] = self._target(t, frame, dt, targets)
         return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
 
-    def _target(self, t: str, frame: HumanFrame, dt: float | None) -> Target:
+    def _swivel_elbow(self, t: str, frame: HumanFrame, wrist: Target | None) -> np.ndarray | None:
+        """Swivel elbow target (3,) [m], or None when it cannot be placed (then eqs. 1-3 are used)."""
+        side = t.split("_")[0]
+        arm = self.arms.get(side)
+        if arm is None or wrist is None or not wrist.valid or self.config.mode == "incremental":
+            return None
+        bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
+        if any(b is None or not b.valid for b in bones):
+            return None
+        p = arm.place(wrist.p, human_swivel(*(np.asarray(b.p, dtype=float) for b in bones)))
+        if self.config.mode == "bounded":
+            ws = self.workspace
+            q = np.clip(p, ws.lower[t], ws.upper[t])
+            if np.any(np.abs(q - p) > 1e-9):
+                self.counts[f"clamped_{t}"] += 1
+            p = q
+        return p
+
+    def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
         use_rot = t.endswith("wrist") or self.config.elbow_rotation
         bone = frame.bones.get(self.bone_of[t])
         if bone is None or not bone.valid:
@@ -257,9 +321,11 @@ class Retargeter:
                 pos_map.reanchor()
             p, R = self._held[t]
             return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
-        p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
-        if clamped.any():
-            self.counts[f"clamped_{t}"] += 1
+        p = self._swivel_elbow(t, frame, done.get(t.replace("elbow", "wrist"))) if t.endswith("elbow") else None
+        if p is None:
+            p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
+            if clamped.any():
+                self.counts[f"clamped_{t}"] += 1
         R = self._rot_map[t](quat_to_matrix(bone.q))
         prev = self._prev[t]
         if prev is None or dt is None or dt <= 0:

@@ -18,8 +18,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")
     parser.add_argument("--robot", default=None, help="robot profile name or TOML path (default g1_29dof)")
     parser.add_argument("--no-smoothing", action="store_true", help="publish raw solver output (no quintic)")
-    parser.add_argument("--orientation-weight", type=float, default=0.3, help="wrist orientation cost [1/rad]")
-    parser.add_argument("--gain", type=float, default=50.0, help="task error gain [1/s]")
+    parser.add_argument(
+        "--orientation-weight", type=float, default=None, help="wrist orientation cost [1/rad] (default: SolverConfig)"
+    )
+    parser.add_argument("--gain", type=float, default=None, help="task error gain [1/s] (default: SolverConfig)")
+    parser.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="re-anchor on the measured joints when they drift more than the resync threshold from the command",
+    )
+    parser.add_argument(
+        "--trigger",
+        choices=("rate", "event"),
+        default="rate",
+        help="rate: tick on the fixed clock only; event: also tick as soon as new targets arrive "
+        "(lowest latency; meant for mocap at or above the control rate)",
+    )
     parser.add_argument(
         "--startup-wait", type=float, default=0.5, help="wait this long [s] for a robot state to start from"
     )

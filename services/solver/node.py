@@ -41,14 +41,14 @@ class JointMap:
 
 def config_from_args(args: argparse.Namespace) -> SolverConfig:
     """SolverConfig from the ``mimic solve`` flags."""
+    optional = {"wrist_orientation_cost": args.orientation_weight, "gain": args.gain}
     return SolverConfig(
         algo=args.algo,
         qp=args.qp,
         rate=args.rate,
         solver_id=args.id,
-        wrist_orientation_cost=args.orientation_weight,
-        gain=args.gain,
         smoothing=not args.no_smoothing,
+        **{k: v for k, v in optional.items() if v is not None},
     )
 
 
@@ -85,16 +85,23 @@ def run(args: argparse.Namespace) -> int:
         ticks_ms: list[float] = []
         next_t = time.monotonic()
         overruns = 0
+        event = getattr(args, "trigger", "rate") == "event"
         while not svc.stop_event.is_set():
             delay = next_t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            if event:
+                # Wake on new targets or at the deadline, whichever comes first.
+                msg = targets.take(timeout=delay if delay > 0 else None)
+            else:
+                if delay > 0:
+                    time.sleep(delay)
+                msg = targets.take()
             t = time.monotonic()
-            msg = targets.take()
             state = states.take()
             q_meas = None
-            # Measured joints matter only when the robot follows this solver (shadow solvers stay open loop).
-            if state is not None and state.solver_id == args.id:
+            # The solver integrates its own commands (feeding back the servo lag would add it to every
+            # step, and re-anchoring on it makes the command jump). Measured joints re-anchor only with
+            # --closed-loop, and only while the robot follows this solver (shadows stay open loop).
+            if args.closed_loop and state is not None and state.solver_id == args.id:
                 q_meas = joint_map(state)
             cmd = core.step(msg, q_meas, t)
             svc.publish(pub, cmd, stream="commands")
@@ -113,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                     }
                 )
                 ticks_ms.clear()
-            next_t += period
+            next_t = t + period if event else next_t + period
             if t - next_t > 5 * period:
                 # Far behind (machine stalled): skip the missed ticks instead of bursting.
                 overruns += 1

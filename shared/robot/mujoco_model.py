@@ -66,10 +66,43 @@ class MujocoRobot:
         return Rb.T @ (self.data.xpos[bid] - pb), Rb.T @ R
 
 
+def _exclude_near_contacts(spec: mujoco.MjSpec, hops: int) -> None:
+    """Exclude contacts between rigid groups at most ``hops`` joints apart up the tree.
+
+    A rigid group is a body with a joint plus every body welded to it (fixed URDF
+    joints such as the torso's logo link); groups count as one link.
+    """
+    bodies = [b for b in spec.bodies if b.name and b.name != "world"]
+
+    def group(b):
+        while len(b.joints) == 0 and b.parent is not None and b.parent.name not in ("", "world"):
+            b = b.parent
+        return b.name
+
+    members: dict[str, list[str]] = {}
+    for b in bodies:
+        members.setdefault(group(b), []).append(b.name)
+    by_name = {b.name: b for b in bodies}
+    pairs = set()
+    for root in members:
+        anc = by_name[root].parent
+        for _ in range(hops):
+            if anc is None or anc.name in ("", "world"):
+                break
+            up = group(anc)
+            pairs.update((a, b) for a in members[up] for b in members[root])
+            anc = by_name[up].parent
+    for a, b in sorted(pairs):
+        exclude = spec.add_exclude()
+        exclude.bodyname1, exclude.bodyname2 = a, b
+
+
 def build_mujoco_robot(
     profile: RobotProfile | str | None = None,
     joint_names: tuple[str, ...] | None = None,
     timestep: float = 0.001,
+    gravity_compensation: bool = False,
+    contact_exclude_hops: int = 1,
 ) -> MujocoRobot:
     """Compile the profile's URDF into MuJoCo with position servos on every joint.
 
@@ -78,6 +111,13 @@ def build_mujoco_robot(
         joint_names: controlled joints, in the order the caller uses
             (default: the profile's 17 with the waist).
         timestep: physics step [s].
+        gravity_compensation: motors cancel gravity: every body gets ``gravcomp = 1``
+            routed through the joint actuators (``actgravcomp``, so the effort limits
+            still apply). Must be set in the spec: MuJoCo sizes it at compile time.
+        contact_exclude_hops: no contacts between a body and its ancestors up to this many
+            joints up the tree. 1 is MuJoCo's own parent-child filter; the URDF collision
+            meshes of a shoulder overlap the torso two and three links up, so a value of 3
+            keeps those spurious contacts out while arms still collide with torso and legs.
     """
     prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
     spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(prof))
@@ -85,8 +125,13 @@ def build_mujoco_robot(
     kp = prof.actuators.get("kp", 400.0)
     kv = prof.actuators.get("kv", 20.0)
     armature = prof.actuators.get("armature", 0.01)
+    if gravity_compensation:
+        for body in spec.bodies:
+            body.gravcomp = 1.0
     for joint in spec.joints:
         joint.armature = armature
+        if gravity_compensation:
+            joint.actgravcomp = True
         act = spec.add_actuator()
         act.name = joint.name
         act.target = joint.name
@@ -95,6 +140,8 @@ def build_mujoco_robot(
         if joint.limited:
             act.ctrlrange = joint.range
             act.ctrllimited = True
+    if contact_exclude_hops > 1:
+        _exclude_near_contacts(spec, contact_exclude_hops)
     model = spec.compile()
     data = mujoco.MjData(model)
     names = tuple(joint_names or prof.controlled_joints(True))

@@ -1,0 +1,1 @@
+"""Logger service: every bus message recorded with Rerun (the only rerun importer)."""

@@ -1,0 +1,116 @@
+"""``mimic log``: record every message of the session with Rerun.
+
+Always writes an ``.rrd`` (default ``runs/<session>.rrd``); ``--spawn`` also starts a
+native viewer, ``--serve`` serves gRPC (``--grpc-port``) and the web viewer
+(``--web-port``) for a remote browser, ``--connect-viewer URL`` streams to a viewer
+already running elsewhere.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from shared.bus import add_bus_args
+
+log = logging.getLogger("mimic.log")
+
+
+def _vec3(text: str) -> tuple[float, float, float]:
+    parts = [float(x) for x in text.split(",")]
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected x,y,z, got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("recording")
+    g.add_argument("--rrd", type=Path, default=None, help="recording file (default runs/<session>.rrd)")
+    g.add_argument("--spawn", action="store_true", help="also spawn a native Rerun viewer (needs a display)")
+    g.add_argument("--serve", action="store_true", help="also serve gRPC + the web viewer for a remote browser")
+    g.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve / --spawn")
+    g.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve")
+    g.add_argument(
+        "--advertise-host",
+        default="localhost",
+        help="host name the browser uses to reach the gRPC server (--serve); the machine's name or IP for remote use",
+    )
+    g.add_argument(
+        "--connect-viewer", default=None, metavar="URL", help="stream to a running viewer (rerun+http://...)"
+    )
+    g = p.add_argument_group("content")
+    g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
+    g.add_argument("--no-meshes", action="store_true", help="do not draw the robot meshes")
+    g.add_argument("--robot-rate", type=float, default=30.0, help="robot mesh placements per second [Hz]")
+    g.add_argument("--skeleton-rate", type=float, default=60.0, help="human skeletons per second [Hz] (0: all)")
+    g.add_argument("--operator-offset", type=_vec3, default=(0.0, 1.0, 0.0), help="operator drawn at x,y,z [m]")
+    g.add_argument("--follow", default="main", help="solver whose commands pose the 'command' robot")
+    g.add_argument("--queue", type=int, default=4096, help="samples buffered before new ones are skipped")
+    add_bus_args(p)
+
+
+def open_recording(args: argparse.Namespace, rrd: Path):
+    """Recording stream with its sinks (file, and optionally viewer/server) and the blueprint."""
+    import rerun as rr
+
+    from .rerun_logger import blueprint
+
+    rec = rr.RecordingStream("mimic")
+    rec.send_recording_name(getattr(args, "session", "mimic"))
+    sinks: list = [rr.FileSink(str(rrd))]
+    if args.spawn:
+        rr.spawn(port=args.grpc_port, connect=False)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{args.grpc_port}/proxy"))
+    elif args.serve:
+        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
+    if args.connect_viewer:
+        sinks.append(rr.GrpcSink(args.connect_viewer))
+    bp = blueprint(args.operator_offset)
+    rec.set_sinks(*sinks, default_blueprint=bp)
+    rec.send_blueprint(bp)
+    if args.serve and not args.spawn:
+        url = f"rerun+http://{args.advertise_host}:{args.grpc_port}/proxy"
+        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
+        log.info("web viewer on http://%s:%d (data from %s)", args.advertise_host, args.web_port, url)
+    return rec
+
+
+def main(args: argparse.Namespace) -> int:
+    from shared.bus import ServiceRunner
+    from shared.robot.profile import ProfileError
+
+    from .node import LoggerNode
+    from .rerun_logger import RerunLogger
+    from .robot_visual import RobotVisual
+
+    rrd = args.rrd or Path("runs") / f"{args.session}.rrd"
+    try:
+        rrd.parent.mkdir(parents=True, exist_ok=True)
+        visual = None if args.no_meshes else RobotVisual(args.robot)
+    except (ProfileError, OSError, ValueError) as exc:
+        log.error("%s", exc)
+        return 2
+    rec = open_recording(args, rrd)
+    logger = RerunLogger(
+        rec,
+        visual,
+        operator_offset=args.operator_offset,
+        robot_rate=args.robot_rate,
+        skeleton_rate=args.skeleton_rate,
+        follow=args.follow,
+    )
+    logger.setup()
+    with ServiceRunner("logger", args) as svc:
+        node = LoggerNode(logger, svc, queue_size=args.queue)
+        svc.log.info("recording %s to %s", svc.keys.everything, rrd)
+        while not svc.stop_event.wait(0.5):
+            node.update_status()
+        node.close()
+        logger.flush_error()
+        node.update_status()
+        svc.log.info("logged %s, skipped %d, rejected %s", logger.counts, node.skipped, logger.rejects)
+    rec.flush()
+    rec.disconnect()
+    log.info("recording written: %s", rrd)
+    return 0

@@ -1,0 +1,1 @@
+"""Simulation service: MuJoCo robot following one solver's JointCommands."""

@@ -1,0 +1,247 @@
+"""Bus wiring of the sim service: JointCommands in, RobotState out.
+
+* Subscribes ``keys.all_commands`` and keeps the commands whose ``solver_id`` is the
+  one followed (others are ignored, counted in ``extra.ignored``). Real time keeps only
+  the newest command (overwritten ones count as dropped); lock-step queues every one.
+* Publishes :class:`RobotState` on ``keys.sim_state``: at ``--state-rate`` of
+  simulated time in real time, after every command in lock-step.
+* Serves ``keys.sim_follow``: without payload it returns ``{"follow": id}`` (msgpack);
+  a payload (msgpack string, msgpack/JSON map ``{"follow": id}`` or plain UTF-8 text)
+  switches to that solver id and returns the new value.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+
+from shared.bus import LatestSlot, ServiceRunner
+from shared.keys import Keys
+from shared.messages import JointCommand
+
+from .render import BackgroundFrameWriter, FrameWriter, open_renderer
+from .sim_core import SimCore
+
+#: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
+MAX_CATCHUP = 0.05
+
+
+def parse_follow(payload: bytes) -> str:
+    """Solver id from a follow-queryable payload (msgpack str/map, JSON map or text).
+
+    Raises:
+        ValueError: empty or not a single key chunk ``[A-Za-z0-9_-]+``.
+    """
+    value = None
+    try:
+        value = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        try:
+            value = json.loads(payload.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            value = payload.decode(errors="replace").strip()
+    if isinstance(value, dict):
+        value = value.get("follow")
+    if not isinstance(value, str) or not value:
+        raise ValueError("follow payload must name a solver id (text, msgpack string or {'follow': id})")
+    Keys().command(value)  # raises ValueError unless it is one key chunk
+    return value
+
+
+class SimNode:
+    """Glue between a :class:`SimCore` and a :class:`ServiceRunner`.
+
+    Args:
+        core: the simulation.
+        svc: an entered ServiceRunner.
+        lockstep: queue every command and advance ``lockstep_dt`` per command.
+        lockstep_dt: simulated time per command in lock-step [s].
+        state_rate: RobotState rate in real time [Hz of simulated time].
+        renderer: optional frame writer.
+    """
+
+    def __init__(
+        self,
+        core: SimCore,
+        svc: ServiceRunner,
+        lockstep: bool = False,
+        lockstep_dt: float = 0.01,
+        state_rate: float = 200.0,
+        renderer: FrameWriter | BackgroundFrameWriter | None = None,
+    ):
+        self.core = core
+        self.svc = svc
+        self.lockstep = lockstep
+        self.lockstep_dt = lockstep_dt
+        self.state_period = 1.0 / state_rate
+        self.renderer = renderer
+        self._follow_lock = threading.Lock()
+        self.follow = core.solver_id
+        self.ignored = 0
+        self.overruns = 0
+        self._rejects_seen: dict[str, int] = {}
+        self._slot = LatestSlot(svc.status, "commands")
+        self._queue: queue.Queue[JointCommand] = queue.Queue(maxsize=10000)
+        self._pub = svc.publisher(svc.keys.sim_state)
+        svc.subscribe(svc.keys.all_commands, self.on_command, JointCommand.decode, stream="commands")
+        svc.queryable(svc.keys.sim_follow, self.on_follow)
+
+    # ------------------------------------------------------------------ callbacks (zenoh threads)
+
+    def on_command(self, cmd: JointCommand) -> None:
+        """Keep commands of the followed solver; never blocks the zenoh thread."""
+        if cmd.solver_id != self.follow:
+            self.ignored += 1
+            return
+        if not self.lockstep:
+            self._slot.put(cmd)
+            return
+        try:
+            self._queue.put_nowait(cmd)
+        except queue.Full:
+            self.svc.status.dropped("commands")
+
+    def on_follow(self, payload: bytes | None) -> bytes:
+        """Queryable handler: GET the followed solver id; a payload sets it."""
+        if payload:
+            new = parse_follow(payload)
+            with self._follow_lock:
+                if new != self.follow:
+                    self.svc.log.info("following solver %r (was %r)", new, self.follow)
+                self.follow = new
+        return msgpack.packb({"follow": self.follow})
+
+    # ------------------------------------------------------------------ main loop
+
+    def _apply(self, cmd: JointCommand | None) -> None:
+        if cmd is None:
+            return
+        if cmd.solver_id != self.follow:  # queued before a follow switch
+            self.ignored += 1
+            return
+        self.core.solver_id = self.follow
+        if not self.core.apply(cmd):
+            c = self.core.counters
+            for reason, n in c.rejects.items():
+                if n > self._rejects_seen.get(reason, 0):
+                    self.svc.status.reject(reason, c.last_reject)
+                    self._rejects_seen[reason] = n
+
+    def _publish(self) -> None:
+        self.core.solver_id = self.follow
+        self.svc.publish(self._pub, self.core.state(), stream="state")
+
+    def _render(self) -> None:
+        if self.renderer is not None:
+            self.renderer.maybe_render(self.core.robot.data)
+
+    def update_status(self) -> None:
+        """Refresh the status state and service-specific figures."""
+        st = self.svc.status
+        c = self.core.counters
+        st.state = "holding" if self.core.holding else "ok"
+        st.extra.update(
+            {
+                "applied": float(c.applied),
+                "clipped": float(c.clipped),
+                "holds": float(c.holds),
+                "ignored": float(self.ignored),
+                "overruns": float(self.overruns),
+                "sim_time": self.core.time,
+                "max_contacts": float(self.core.max_contacts),
+            }
+        )
+
+    def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
+        """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time)."""
+        core = self.core
+        dt = core.dt
+        wall0 = time.monotonic()
+        sim0 = core.time
+        next_pub = core.time
+        next_status = wall0
+        while not stop.is_set():
+            self._apply(self._slot.take())
+            behind = (time.monotonic() - wall0) - (core.time - sim0)
+            if behind > MAX_CATCHUP:
+                # Too far behind (slow machine, rendering): drop the backlog rather than spiral.
+                self.overruns += 1
+                wall0 += behind - dt
+                behind = dt
+            n = int(behind / dt)
+            for _ in range(n):
+                core.step_physics(1)
+                if core.time + 1e-9 >= next_pub:
+                    self._publish()
+                    next_pub += self.state_period
+                    if next_pub < core.time:
+                        next_pub = core.time + self.state_period
+                self._render()
+            now = time.monotonic()
+            if now >= next_status:
+                self.update_status()
+                next_status = now + 0.1
+            if duration is not None and core.time - sim0 >= duration:
+                break
+            sleep = dt - ((now - wall0) - (core.time - sim0))
+            if sleep > 0:
+                time.sleep(sleep)
+
+    def run_lockstep(self, stop: threading.Event) -> None:
+        """Advance ``lockstep_dt`` per command, as fast as commands come, until ``stop``."""
+        while not stop.is_set():
+            try:
+                cmd = self._queue.get(timeout=0.1)
+            except queue.Empty:
+                self.update_status()
+                continue
+            self._apply(cmd)
+            steps = max(1, round(self.lockstep_dt / self.core.dt))
+            for _ in range(steps):
+                self.core.step_physics(1)
+                self._render()
+            self._publish()
+            self.update_status()
+
+
+def run(args, core: SimCore) -> int:
+    """Run the sim service until SIGINT/SIGTERM."""
+    renderer = None
+    if args.render:
+        renderer, why = open_renderer(core.robot.model, Path(args.render), fps=args.render_fps, fmt=args.render_format)
+        if renderer is None:
+            import logging
+
+            logging.getLogger("mimic.sim").warning("%s", why)
+    try:
+        with ServiceRunner("sim", args) as svc:
+            node = SimNode(
+                core,
+                svc,
+                lockstep=args.clock == "lockstep",
+                lockstep_dt=args.lockstep_dt,
+                state_rate=args.state_rate,
+                renderer=renderer,
+            )
+            svc.log.info(
+                "sim %s clock, following %s on %s, state on %s, servo %s",
+                args.clock,
+                node.follow,
+                svc.keys.all_commands,
+                svc.keys.sim_state,
+                core.info(),
+            )
+            if node.lockstep:
+                node.run_lockstep(svc.stop_event)
+            else:
+                node.run_realtime(svc.stop_event)
+            node.update_status()
+    finally:
+        if renderer is not None:
+            renderer.close()
+    return 0

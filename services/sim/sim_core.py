@@ -1,0 +1,332 @@
+"""Pure simulation core: MuJoCo robot, servo targets, watchdog. No bus, no clock.
+
+The robot comes from :func:`shared.robot.mujoco_model.build_mujoco_robot` (same URDF
+as Pinocchio, pelvis welded to the world, every joint on a position servo, legs held
+at rest). On top of the plain position servos the core adds what a real joint
+controller does, all through the actuators so the URDF effort limits still bound
+every torque:
+
+* **velocity feedforward**: a MuJoCo position actuator with damping ``kv`` produces
+  ``kp (ctrl - q) - kv qdot``. Shifting the target by ``kv/kp * qd_ref`` turns that
+  into ``kp (q_ref - q) + kv (qd_ref - qdot)``, i.e. the servo damps the *tracking*
+  velocity error instead of braking the motion (that brake alone costs ~9 degrees of
+  lag on a 1 Hz, 30 degree sine);
+* **gravity compensation**: ``body_gravcomp = 1`` routed through the actuators
+  (``jnt_actgravcomp``), so gravity stays on in the physics and the motors hold it;
+* **first-order hold**: between two commands the target moves on with the commanded
+  velocity (up to ``max_extrapolation``), instead of a staircase at the command rate;
+* **rate limit**: the servo target never moves faster than the joint's ``vmax``, which
+  is what makes the watchdog resume (and the very first command) jump-free.
+
+Time is simulated time ``data.time`` [s]; the watchdog runs on it too, so the core is
+deterministic: the same commands at the same simulated times give identical states.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from shared.messages import TARGET_NAMES, Header, JointCommand, Pose, RobotState
+from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
+from shared.robot.pinocchio_model import build_robot_model
+from shared.robot.profile import RobotProfile, load_profile
+
+log = logging.getLogger("mimic.sim")
+
+#: Tolerance on the URDF limits before a commanded q counts as "beyond limits" [rad].
+LIMIT_TOL = 1e-6
+
+
+@dataclass
+class SimConfig:
+    """Servo and watchdog settings of :class:`SimCore`.
+
+    Attributes:
+        timestep: physics step [s] (1 kHz default).
+        watchdog: time without commands after which the last pose is held [s].
+        velocity_feedforward: feed the commanded qd into the servo damping.
+        gravity_compensation: motors cancel gravity (through the actuators).
+        max_extrapolation: longest first-order hold past a command [s].
+        contacts: simulate contacts (self-collisions of the robot).
+        contact_exclude_hops: no contacts between a body and its ancestors this many links
+            up (the shoulder collision meshes overlap the torso: spurious contacts).
+        solver_id: solver whose commands are followed (reported in RobotState).
+    """
+
+    timestep: float = 0.001
+    watchdog: float = 0.1
+    velocity_feedforward: bool = True
+    gravity_compensation: bool = True
+    max_extrapolation: float = 0.05
+    contacts: bool = True
+    contact_exclude_hops: int = 3
+    solver_id: str = "main"
+
+
+@dataclass
+class SimCounters:
+    """What happened to the commands given to :meth:`SimCore.apply`."""
+
+    applied: int = 0
+    clipped: int = 0
+    rejects: dict[str, int] = field(default_factory=dict)
+    last_reject: str = ""
+    holds: int = 0
+
+
+class CommandError(ValueError):
+    """A JointCommand the core refuses; ``reason`` is a short tag for status counters."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+def _quat_wxyz(R: np.ndarray) -> np.ndarray:
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
+    return q
+
+
+class SimCore:
+    """MuJoCo robot following JointCommands.
+
+    Args:
+        profile: robot profile (object, name or path; default G1).
+        config: servo and watchdog settings.
+    """
+
+    def __init__(self, profile: RobotProfile | str | None = None, config: SimConfig | None = None):
+        self.config = cfg = config or SimConfig()
+        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+        self.robot: MujocoRobot = build_mujoco_robot(
+            prof,
+            timestep=cfg.timestep,
+            gravity_compensation=cfg.gravity_compensation,
+            contact_exclude_hops=cfg.contact_exclude_hops,
+        )
+        kin = build_robot_model(prof, with_waist=True)
+        self.joint_names: tuple[str, ...] = self.robot.joint_names
+        order = [kin.joint_names.index(n) for n in self.joint_names]
+        self._index = {n: i for i, n in enumerate(self.joint_names)}
+        # Soft limits (profile margin applied) are where q is clipped; hard (URDF) limits
+        # are where a command is refused outright.
+        self.lower = kin.lower[order].copy()
+        self.upper = kin.upper[order].copy()
+        self.hard_lower = self.lower - prof.limit_margin
+        self.hard_upper = self.upper + prof.limit_margin
+        self.vmax = kin.vmax[order].copy()
+
+        m = self.robot.model
+        m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # stiff servos need implicit damping
+        if not cfg.contacts:
+            m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        act = self.robot.act_idx
+        # The velocity feedforward shifts ctrl past q_ref near a limit; the servo target
+        # itself (q_servo) is always clipped into the soft limits below.
+        m.actuator_ctrllimited[act] = 0
+        self.kp = m.actuator_gainprm[act, 0].copy()
+        self.kv = -m.actuator_biasprm[act, 2].copy()
+        self._ff_gain = np.divide(self.kv, self.kp, out=np.zeros_like(self.kp), where=self.kp > 0)
+
+        d = self.robot.data
+        q0 = np.clip(d.qpos[self.robot.qpos_idx].copy(), self.lower, self.upper)
+        self.robot.set_q(q0)
+        mujoco.mj_forward(m, d)
+        self.q_servo = q0.copy()  # rate-limited servo target (n,) [rad]
+        self._ref_q = q0.copy()  # last commanded q (clipped) (n,) [rad]
+        self._ref_qd = np.zeros_like(q0)  # last commanded qd (n,) [rad/s]
+        self._ref_t = 0.0  # sim time the last command was applied [s]
+        self._hold_q = q0.copy()
+        self._last_cmd_time: float | None = None
+        self.holding = True  # holding the rest pose until the first command
+        self.hdr = Header(0, 0.0, 0)
+        self.solver_id = cfg.solver_id
+        self.counters = SimCounters()
+        self._ncon_max = 0
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def dt(self) -> float:
+        """Physics step [s]."""
+        return float(self.robot.model.opt.timestep)
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]."""
+        return float(self.robot.data.time)
+
+    @property
+    def q(self) -> np.ndarray:
+        """(n,) controlled joint positions [rad]."""
+        return self.robot.data.qpos[self.robot.qpos_idx].copy()
+
+    @property
+    def max_contacts(self) -> int:
+        """Largest number of simultaneous contacts seen so far."""
+        return self._ncon_max
+
+    # ------------------------------------------------------------------ commands
+
+    def check(self, cmd: JointCommand) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Validate a command against this robot.
+
+        Returns:
+            (idx (k,) joint indices, q (k,) [rad], qd (k,) [rad/s]).
+
+        Raises:
+            CommandError: unknown/duplicate/empty joint names ("joint_names"),
+                length mismatch ("shape"), NaN/inf ("nan"), q beyond the URDF limits ("limits").
+        """
+        names = list(cmd.joints)
+        if not names:
+            raise CommandError("joint_names", "command names no joint")
+        unknown = [n for n in names if n not in self._index]
+        if unknown:
+            raise CommandError("joint_names", f"unknown joints {unknown}; controlled: {list(self.joint_names)}")
+        if len(set(names)) != len(names):
+            raise CommandError("joint_names", "duplicated joint names")
+        q = np.asarray(cmd.q, dtype=float).ravel()
+        qd = np.asarray(cmd.qd, dtype=float).ravel()
+        if q.shape != (len(names),) or qd.shape != (len(names),):
+            raise CommandError("shape", f"{len(names)} joints but q {q.shape}, qd {qd.shape}")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise CommandError("nan", "q or qd contains NaN or inf")
+        idx = np.array([self._index[n] for n in names])
+        lo, hi = self.hard_lower[idx] - LIMIT_TOL, self.hard_upper[idx] + LIMIT_TOL
+        bad = np.flatnonzero((q < lo) | (q > hi))
+        if bad.size:
+            j = int(bad[0])
+            raise CommandError(
+                "limits", f"{names[j]} = {q[j]:.4f} rad outside [{lo[j] + LIMIT_TOL:.4f}, {hi[j] - LIMIT_TOL:.4f}]"
+            )
+        return idx, q, qd
+
+    def apply(self, cmd: JointCommand, now: float | None = None) -> bool:
+        """Take a command as the new servo reference.
+
+        Args:
+            cmd: the command; joints may be any subset of the controlled joints
+                (the others keep their reference).
+            now: time it is applied on the core's clock [s] (default: simulated time).
+
+        Returns:
+            True if applied; False if rejected (counted in :attr:`counters`, never applied).
+        """
+        try:
+            idx, q, qd = self.check(cmd)
+        except CommandError as exc:
+            c = self.counters
+            c.rejects[exc.reason] = c.rejects.get(exc.reason, 0) + 1
+            c.last_reject = str(exc)
+            return False
+        now = self.time if now is None else float(now)
+        qc = np.clip(q, self.lower[idx], self.upper[idx])  # last safety net: never past the soft limits
+        if np.any(qc != q):
+            self.counters.clipped += 1
+        self._ref_q[idx] = qc
+        self._ref_qd[:] = 0.0
+        self._ref_qd[idx] = np.clip(qd, -self.vmax[idx], self.vmax[idx])
+        self._ref_t = now
+        self._last_cmd_time = now
+        if self.holding:
+            log.debug("commands resumed at t=%.3f s (seq %d)", now, cmd.hdr.seq)
+        self.holding = False
+        self.hdr = cmd.hdr
+        self.counters.applied += 1
+        return True
+
+    # ------------------------------------------------------------------ physics
+
+    def _servo_step(self) -> None:
+        d = self.robot.data
+        dt = self.dt
+        t = float(d.time)
+        cfg = self.config
+        if not self.holding and self._last_cmd_time is not None and t - self._last_cmd_time > cfg.watchdog:
+            self.holding = True
+            self._hold_q = self.q_servo.copy()
+            self.counters.holds += 1
+            log.debug("watchdog: no command for %.0f ms, holding", 1e3 * (t - self._last_cmd_time))
+        if self.holding:
+            ref, vel = self._hold_q, None
+        else:
+            h = min(max(t + dt - self._ref_t, 0.0), cfg.max_extrapolation)
+            ref = np.clip(self._ref_q + self._ref_qd * h, self.lower, self.upper)
+            vel = self._ref_qd if h < cfg.max_extrapolation else None
+        delta = ref - self.q_servo
+        lim = self.vmax * dt
+        step = np.clip(delta, -lim, lim)
+        self.q_servo = self.q_servo + step
+        ctrl = self.q_servo
+        if cfg.velocity_feedforward:
+            limited = np.abs(delta) > lim
+            v = step / dt if vel is None else np.where(limited, step / dt, vel)
+            ctrl = ctrl + self._ff_gain * v
+        d.ctrl[self.robot.act_idx] = ctrl
+        mujoco.mj_step(self.robot.model, d)
+        if d.ncon > self._ncon_max:
+            self._ncon_max = int(d.ncon)
+
+    def step_physics(self, n: int = 1) -> None:
+        """Advance the physics by ``n`` steps of :attr:`dt` (watchdog checked every step)."""
+        for _ in range(int(n)):
+            self._servo_step()
+
+    def advance(self, cmd: JointCommand | None, duration: float) -> bool:
+        """Lock-step: apply ``cmd`` (if any) now, then simulate ``duration`` [s].
+
+        Returns:
+            Whether the command was applied.
+        """
+        ok = self.apply(cmd) if cmd is not None else False
+        self.step_physics(max(1, round(duration / self.dt)))
+        return ok
+
+    # ------------------------------------------------------------------ output
+
+    def frame_poses(self) -> dict[str, Pose]:
+        """Achieved poses of the target frames in the pelvis frame (p [m], q wxyz)."""
+        mujoco.mj_kinematics(self.robot.model, self.robot.data)  # xpos after mj_step lags qpos by one step
+        out = {}
+        for name in TARGET_NAMES:
+            p, R = self.robot.frame_pose(name)
+            out[name] = Pose(np.array(p, dtype=float), _quat_wxyz(R))
+        return out
+
+    def state(self) -> RobotState:
+        """Current :class:`RobotState` (header = that of the last applied command)."""
+        d = self.robot.data
+        return RobotState(
+            hdr=self.hdr,
+            joints=list(self.joint_names),
+            q=d.qpos[self.robot.qpos_idx].copy(),
+            qd=d.qvel[self.robot.dof_idx].copy(),
+            frames=self.frame_poses(),
+            sim_time=float(d.time),
+            solver_id=self.solver_id,
+            holding=bool(self.holding),
+        )
+
+    def info(self) -> dict:
+        """Servo configuration, for reports (JSON-able)."""
+        return {
+            "timestep_s": self.dt,
+            "kp": sorted({float(k) for k in self.kp}),
+            "kv": sorted({float(k) for k in self.kv}),
+            "armature": sorted({float(a) for a in self.robot.model.dof_armature[self.robot.dof_idx]}),
+            "velocity_feedforward": self.config.velocity_feedforward,
+            "gravity_compensation": self.config.gravity_compensation,
+            "contacts": self.config.contacts,
+            "contact_exclude_hops": self.config.contact_exclude_hops,
+            "max_extrapolation_s": self.config.max_extrapolation,
+            "watchdog_s": self.config.watchdog,
+            "vmax_rad_s": float(np.max(self.vmax)) if self.vmax.size else math.nan,
+        }

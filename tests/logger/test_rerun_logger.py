@@ -1,0 +1,154 @@
+"""RerunLogger on real messages (real MuJoCo sim states, real G1 meshes), read back from the .rrd."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import rerun as rr
+
+from services.logger.rerun_logger import RerunLogger, blueprint
+from services.logger.robot_visual import RobotVisual
+from services.logger.rrd_summary import scalar_rows, summarize
+from services.sim.sim_core import SimConfig, SimCore
+from shared.messages import (
+    HUMAN_BONES,
+    TARGET_NAMES,
+    Bone,
+    Header,
+    HumanFrame,
+    JointCommand,
+    Pose,
+    ServiceStatus,
+    Target,
+    TaskTargets,
+)
+
+IDENT = np.array([1.0, 0.0, 0.0, 0.0])
+N = 40
+DT = 0.01  # 100 Hz source
+WRIST_OFFSET = np.array([0.03, 0.0, 0.0])  # targets placed 3 cm from where the sim's wrist is
+
+
+@pytest.fixture(scope="module")
+def visual():
+    return RobotVisual()
+
+
+def make_sequence(n: int = N, expected: list | None = None):
+    """Encoded payloads in bus order for n mocap frames through a real sim.
+
+    ``expected`` (if given) receives, per frame, the (4,) error [cm] of the frame's last
+    RobotState against its targets, computed here independently of the logger.
+    """
+    core = SimCore(config=SimConfig(watchdog=1.0))
+    rng = np.random.default_rng(0)
+    out = []
+    for k in range(n):
+        hdr = Header(k, k * DT, time.time_ns() - 5_000_000)  # entered the bus 5 ms ago
+        bones = {b: Bone(rng.normal(0, 0.3, 3), IDENT, valid=(b != "left_hand")) for b in HUMAN_BONES}
+        out.append(HumanFrame(hdr, "test", Pose(np.zeros(3), IDENT), bones).encode())
+        frames = core.state().frames
+        targets = {
+            t: Target(frames[t].p + (WRIST_OFFSET if t == "left_wrist" else 0.0), frames[t].q, np.zeros(3), np.zeros(3))
+            for t in TARGET_NAMES
+        }
+        out.append(TaskTargets(hdr, targets).encode())
+        q = core.q.copy()
+        q[core.joint_names.index("left_elbow_joint")] += 0.2 * math.sin(k / 5)
+        for sid in ("main", "alt"):
+            cmd = JointCommand(hdr, sid, "hqp", list(core.joint_names), q, 0 * q, [1e-3, 2e-3, 5e-2], 0.2)
+            out.append(cmd.encode())
+            if sid == "main":
+                core.apply(cmd)
+                out.append(cmd.encode())  # solvers tick faster than frames: same seq again
+        # The sim publishes faster than commands arrive: a state right after applying, one
+        # half a frame later; the error is that of the last one.
+        out.append(core.state().encode())
+        core.step_physics(round(DT / core.dt / 2))
+        last = core.state()
+        out.append(last.encode())
+        if expected is not None:
+            expected.append([100 * np.linalg.norm(last.frames[t].p - targets[t].p) for t in TARGET_NAMES])
+        core.step_physics(round(DT / core.dt / 2))
+    st = ServiceStatus("solver", "main", "ok", 1.0, counts={"dropped": 3})
+    out.append(st.encode())
+    return out
+
+
+def test_logs_a_real_sequence_and_reads_it_back(tmp_path, visual):
+    rrd = tmp_path / "t.rrd"
+    rec = rr.RecordingStream("mimic_test")
+    rec.save(str(rrd))
+    rec.send_blueprint(blueprint())
+    lg = RerunLogger(rec, visual, robot_rate=50.0, skeleton_rate=0.0)
+    expected: list = []
+    payloads = make_sequence(expected=expected)
+    bad = [b"\x00garbage", msgpack.packb({"v": 99, "t": "HumanFrame"}), msgpack.packb({"v": 1, "t": "Nope"})]
+    for p in payloads + bad:
+        lg.step("mimic/test/x", p)
+    lg.flush_error()
+    rec.flush()
+    rec.disconnect()
+
+    assert lg.counts["HumanFrame"] == N and lg.counts["TaskTargets"] == N
+    assert lg.counts["JointCommand"] == 2 * N and lg.counts["RobotState"] == N
+    assert lg.counts["decimated"] == 2 * N  # the repeated states and commands
+    assert lg.rejects == {"unknown_type": 2, "version": 1}
+
+    s = summarize(rrd)
+    for ent in (
+        "/world/operator/skeleton",
+        "/world/operator/joints",
+        "/world/robot/targets/left_wrist",
+        "/world/robot/targets/right_wrist",
+        "/world/robot/targets/elbows",
+        "/world/robot/achieved",
+        "/metrics/error_cm",
+        "/metrics/latency_ms/mocap",
+        "/metrics/latency_ms/state",
+    ):
+        assert s.rows.get(ent) == N, (ent, s.rows.get(ent))
+    assert s.rows["/metrics/residual/main"] == N and s.rows["/metrics/residual/alt"] == N
+    assert s.rows["/metrics/solve_ms/main"] == N and s.rows["/metrics/solve_ms/alt"] == N
+    assert s.rows["/metrics/drops/solver"] == 1
+    assert {"seq", "stamp"} <= s.timelines["/metrics/error_cm"]
+    # Robot meshes: every mesh once (static), moving ones posed at 50 Hz of a 100 Hz source.
+    moving = [m for m in visual.meshes if m.moving]
+    fixed = [m for m in visual.meshes if not m.moving]
+    assert moving and fixed
+    for robot in ("command", "sim"):
+        for m in moving:
+            assert s.rows[f"/world/robot/{robot}/{m.name}"] == N // 2
+        for m in fixed:
+            assert f"/world/robot/{robot}/{m.name}" not in s.rows
+            assert s.static[f"/world/robot/{robot}/{m.name}"] >= 2  # mesh + its fixed placement
+
+    # Values: the error of each frame's last state, as computed beside the sim.
+    seq, err = scalar_rows(rrd, "metrics/error_cm")
+    assert list(seq) == list(range(N))
+    assert np.allclose(err, np.array(expected), atol=1e-6)
+    # The left wrist target sits 3 cm off, so its error is of that size (the robot barely moves).
+    assert np.all(np.abs(err[:, TARGET_NAMES.index("left_wrist")] - 100 * WRIST_OFFSET[0]) < 1.0)
+    _, res = scalar_rows(rrd, "metrics/residual/main")
+    assert res.shape == (N, 3) and np.allclose(res[0], [1e-3, 2e-3, 5e-2])
+    _, lat = scalar_rows(rrd, "metrics/latency_ms/mocap")
+    assert np.all(lat > 4.0) and np.all(lat < 5000.0)
+    stamp, _ = scalar_rows(rrd, "metrics/solve_ms/main", timeline="stamp")
+    assert np.allclose(stamp, np.arange(N) * DT)
+
+
+def test_skeleton_is_decimated_before_decoding(tmp_path):
+    rec = rr.RecordingStream("mimic_test")
+    rec.save(str(tmp_path / "d.rrd"))
+    lg = RerunLogger(rec, None, skeleton_rate=25.0)
+    for k in range(100):  # 1 s at 100 Hz
+        bones = {b: Bone(np.zeros(3), IDENT) for b in HUMAN_BONES}
+        lg.step("k", HumanFrame(Header(k, k * DT), "t", Pose(np.zeros(3), IDENT), bones).encode())
+    rec.flush()
+    rec.disconnect()
+    assert lg.counts["HumanFrame"] == 25 and lg.counts["decimated"] == 75
+    assert summarize(tmp_path / "d.rrd").rows["/world/operator/skeleton"] == 25
