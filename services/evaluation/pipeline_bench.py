@@ -124,6 +124,9 @@ def run(args: argparse.Namespace) -> dict:
         )
         deadline = time.monotonic() + 90
         while not {"retarget", "solver", "sim"} <= alive:
+            exited = sup.poll()
+            if exited:
+                raise RuntimeError(f"services exited during start-up: {exited}")
             if time.monotonic() > deadline:
                 raise RuntimeError(f"services not up: {sorted({'retarget', 'solver', 'sim'} - alive)}")
             time.sleep(0.1)
