@@ -197,37 +197,61 @@ class StatusCounters:
 
 
 class LatestSlot:
-    """Keep only the newest message; count the ones overwritten unread as dropped."""
+    """Keep only the newest ``depth`` messages (default 1: newest wins); count evicted ones as dropped.
 
-    def __init__(self, status: StatusCounters | None = None, stream: str = ""):
+    With a ``decode`` function the slot stores raw payloads and decodes in
+    :meth:`take`, i.e. in the consumer's thread: the Zenoh callback stays
+    trivial, so a slow consumer can never make samples queue up (and latency
+    grow) inside Zenoh. Payloads that fail to decode are counted as rejected.
+    """
+
+    def __init__(
+        self, status: StatusCounters | None = None, stream: str = "", decode: Callable | None = None, depth: int = 1
+    ):
         self._cond = threading.Condition()
-        self._msg: Any = None
-        self._fresh = False
+        self._items: deque[Any] = deque()
+        self._depth = max(1, int(depth))
         self._status = status
         self._stream = stream
+        self._decode = decode
+        self._last: Any = None
 
     def put(self, msg: Any) -> None:
         with self._cond:
-            if self._fresh and self._status is not None:
-                self._status.dropped(self._stream)
-            self._msg = msg
-            self._fresh = True
+            if len(self._items) >= self._depth:
+                self._items.popleft()
+                if self._status is not None:
+                    self._status.dropped(self._stream)
+            self._items.append(msg)
             self._cond.notify_all()
 
     def take(self, timeout: float | None = None) -> Any:
-        """Newest unread message, waiting up to ``timeout`` [s]; None if none arrived."""
+        """Oldest kept unread message, waiting up to ``timeout`` [s]; None if none arrived (or it was invalid)."""
         with self._cond:
-            if not self._fresh and timeout:
+            if not self._items and timeout:
                 self._cond.wait(timeout)
-            if not self._fresh:
+            if not self._items:
                 return None
-            self._fresh = False
-            return self._msg
+            raw = self._items.popleft()
+        if self._decode is None:
+            self._last = raw
+            return raw
+        try:
+            msg = self._decode(raw)
+        except MessageError as exc:
+            if self._status is not None:
+                self._status.reject(exc.reason, f"{self._stream}: {exc.detail}")
+            return None
+        except Exception as exc:  # a decoder bug must not kill the consumer
+            if self._status is not None:
+                self._status.reject("decoder", f"{self._stream}: {type(exc).__name__}: {exc}")
+            return None
+        self._last = msg
+        return msg
 
     def peek(self) -> Any:
-        """Newest message whether read or not (None before the first)."""
-        with self._cond:
-            return self._msg
+        """Newest message taken so far (None before the first)."""
+        return self._last
 
 
 # --------------------------------------------------------------------------- runner
@@ -347,10 +371,20 @@ class ServiceRunner:
         self._entities.append(sub)
         return sub
 
-    def subscribe_latest(self, key: str, decode: Callable[[bytes], Any], stream: str) -> LatestSlot:
-        """Newest-wins mailbox fed by a subscriber on ``key``."""
-        slot = LatestSlot(self.status, stream)
-        self.subscribe(key, slot.put, decode, stream)
+    def subscribe_latest(self, key: str, decode: Callable[[bytes], Any], stream: str, depth: int = 1) -> LatestSlot:
+        """Newest-wins mailbox (keeping ``depth`` messages) fed by a subscriber on ``key``.
+
+        Payloads are decoded by ``take()`` in the consumer's thread.
+        """
+        slot = LatestSlot(self.status, stream, decode, depth)
+        status = self.status
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            status.received(stream)
+            slot.put(sample.payload.to_bytes())
+
+        sub = self.session.declare_subscriber(key, on_sample)
+        self._entities.append(sub)
         return slot
 
     def queryable(self, key: str, handler: Callable[[bytes | None], bytes]):

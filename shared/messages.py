@@ -123,6 +123,40 @@ def _vec(x: Any, where: str, n: int | None = None) -> np.ndarray:
     return arr
 
 
+def _matrix(x: Any, where: str, rows: int, cols: int, names: list[str] | None = None) -> np.ndarray:
+    """A finite (rows, cols) float matrix from a list of lists (vectorised: the hot path)."""
+    items = _list(x, where)
+    if len(items) != rows:
+        raise MessageError("shape", f"{where}: expected {rows} rows, got {len(items)}")
+    for i, row in enumerate(items):
+        if not isinstance(row, (list, tuple)) or len(row) != cols:
+            label = names[i] if names else i
+            raise MessageError("shape", f"{where}[{label}]: expected {cols} numbers, got {row!r}"[:200])
+        for v in row:
+            if type(v) is not float and (type(v) is not int):
+                raise MessageError("type", f"{where}[{names[i] if names else i}]: expected number, got {type(v).__name__}")
+    arr = np.array(items, dtype=float).reshape(rows, cols)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise MessageError("nan", f"{where}[{names[i] if names else i}]: contains NaN or inf")
+    return arr
+
+
+def _quats(x: Any, where: str, rows: int, names: list[str] | None = None) -> np.ndarray:
+    """(rows, 4) unit quaternions, normalised."""
+    q = _matrix(x, where, rows, 4, names)
+    norms = np.linalg.norm(q, axis=1)
+    bad = np.abs(norms - 1.0) > QUAT_NORM_TOL
+    if bad.any():
+        i = int(np.argmax(bad))
+        label = names[i] if names else i
+        raise MessageError(
+            "quaternion", f"{where}[{label}]: quaternion norm {norms[i]:.6f} is not 1 (w, x, y, z expected)"
+        )
+    return q / norms[:, None]
+
+
 def _quat(x: Any, where: str) -> np.ndarray:
     q = _vec(x, where, 4)
     norm = float(np.linalg.norm(q))
@@ -309,11 +343,11 @@ class HumanFrame(Message):
             raise MessageError(
                 "shape", f"names/p/q/valid lengths differ: {len(names)}/{len(ps)}/{len(qs)}/{len(valid)}"
             )
-        bones = {}
-        for i, n in enumerate(names):
-            if not isinstance(valid[i], bool):
-                raise MessageError("type", f"valid[{i}]: expected bool")
-            bones[n] = Bone(_vec(ps[i], f"p[{n}]", 3), _quat(qs[i], f"q[{n}]"), valid[i])
+        if any(type(v) is not bool for v in valid):
+            raise MessageError("type", "valid: expected bools")
+        P = _matrix(ps, "p", len(names), 3, names)
+        Q = _quats(qs, "q", len(names), names)
+        bones = {n: Bone(P[i], Q[i], valid[i]) for i, n in enumerate(names)}
         return cls(
             Header.from_wire(_req(d, "hdr", "HumanFrame")),
             _str(_req(d, "src", "HumanFrame"), "src"),

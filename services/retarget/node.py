@@ -29,6 +29,9 @@ from shared.messages import HumanFrame
 from .calibration import Calibration, CalibrationError
 from .retargeter import Retargeter
 
+#: Frames kept waiting for the worker before the oldest is skipped.
+FRAME_QUEUE = 32
+
 
 def _decode_map(payload: bytes) -> dict:
     try:
@@ -60,9 +63,19 @@ class RetargetNode:
         self._step_us: deque[float] = deque(maxlen=2000)
         self._calibration_seen = retargeter.calibration
         self._pub = svc.publisher(svc.keys.targets)
-        svc.subscribe(svc.keys.mocap_frame, self.on_frame, HumanFrame.decode, stream="frames")
+        # Every frame is retargeted while we keep up; under overload (bursts faster than we can
+        # retarget) the oldest beyond FRAME_QUEUE are skipped and counted, so latency stays bounded.
+        self.frames = svc.subscribe_latest(svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE)
+        self._worker = threading.Thread(target=self._spin, name="retarget-worker", daemon=True)
+        self._worker.start()
         svc.queryable(svc.keys.calibration, self.on_calibration)
         svc.queryable(svc.keys.config("retarget"), self.on_config)
+
+    def _spin(self) -> None:
+        while not self.svc.stop_event.is_set():
+            frame = self.frames.take(timeout=0.1)
+            if frame is not None:
+                self.on_frame(frame)
 
     def on_frame(self, frame: HumanFrame) -> None:
         """Retarget and publish one frame; rejects are counted in the status."""

@@ -1,0 +1,85 @@
+"""Swivel elbow placement and the forearm-relative orientation map (services/retarget/elbow.py, orientation.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.orientation import ForearmOrientationMap, arm_alignment, calibration_posture
+
+
+@pytest.fixture(scope="module")
+def left(robot14):
+    return ArmGeometry.measure(robot14, "left")
+
+
+def test_placed_elbow_has_the_robot_arm_lengths(left):
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        d = rng.uniform(left.reach[0], left.reach[1])
+        u = rng.normal(size=3)
+        wrist = left.centre + d * u / np.linalg.norm(u)
+        e = left.place(wrist, rng.normal(size=3))
+        assert np.linalg.norm(e - left.centre) == pytest.approx(left.upper, abs=1e-9)
+        assert np.linalg.norm(wrist - e) == pytest.approx(left.fore, abs=1e-9)
+
+
+def test_placed_elbow_points_where_the_operator_elbow_points(left):
+    wrist = left.centre + np.array([0.15, 0.0, -0.2])
+    for side in (np.array([0.0, 1.0, 0.0]), np.array([0.0, -1.0, 0.0])):
+        e = left.place(wrist, side)
+        axis = (wrist - left.centre) / np.linalg.norm(wrist - left.centre)
+        off = (e - left.centre) - ((e - left.centre) @ axis) * axis
+        assert off @ side > 0.05  # on the operator's side of the shoulder-wrist line
+
+
+def test_robot_pose_is_recovered_from_its_own_wrist_and_swivel(robot14, left):
+    """A robot configuration with neutral wrist: its wrist plus its own swivel give back its elbow
+    (up to the G1's non-intersecting shoulder axes: about 1 cm median over random poses)."""
+    rng = np.random.default_rng(3)
+    names = list(robot14.joint_names)
+    errs = []
+    for q in robot14.random_configurations(100, rng):
+        for i, n in enumerate(names):
+            if n.startswith("left_wrist"):
+                q[i] = 0.0
+        P = robot14.frame_poses(q, names=("left_elbow", "left_wrist"))
+        sw = human_swivel(left.centre, P["left_elbow"][0], P["left_wrist"][0])
+        errs.append(np.linalg.norm(left.place(P["left_wrist"][0], sw) - P["left_elbow"][0]))
+    assert np.median(errs) < 0.015 and max(errs) < 0.06
+
+
+def test_reach_clamp_moves_only_out_of_reach_wrists(left):
+    inside = left.centre + np.array([0.0, 0.0, -0.25])
+    np.testing.assert_allclose(left.reachable(inside), inside)
+    near = left.centre + np.array([0.0, 0.0, -0.05])
+    assert np.linalg.norm(left.reachable(near) - left.centre) == pytest.approx(left.reach[0])
+    far = left.centre + np.array([0.0, 0.0, -0.6])
+    assert np.linalg.norm(left.reachable(far) - left.centre) == pytest.approx(left.reach[1])
+
+
+def test_calibration_posture_reaches_a_consistent_pair(robot14, left):
+    wrist = left.centre + np.array([0.1, 0.05, -0.25])
+    elbow = left.place(wrist, np.array([-1.0, 0.3, 0.0]))
+    q = calibration_posture(robot14, "left", wrist, elbow)
+    P = robot14.frame_poses(q, names=("left_elbow", "left_wrist"))
+    assert np.linalg.norm(P["left_wrist"][0] - wrist) < 0.01
+    assert np.linalg.norm(P["left_elbow"][0] - elbow) < 0.015
+    wrist_joints = [i for i, n in enumerate(robot14.joint_names) if n.startswith("left_wrist")]
+    assert np.all(q[wrist_joints] == 0.0)
+
+
+def test_forearm_map_gives_calibration_orientation_and_follows_the_forearm():
+    rng = np.random.default_rng(4)
+    R_H0, R_U0 = pin.exp3(rng.normal(size=3)), pin.exp3(rng.normal(size=3))
+    up_H, fore_H = np.array([0.0, 0.02, -0.28]), np.array([0.1, 0.0, -0.2])
+    up_U, fore_U = np.array([0.02, 0.0, -0.19]), np.array([0.15, 0.02, -0.1])
+    m = ForearmOrientationMap(R_H0, R_U0, arm_alignment(up_H, fore_H, up_U, fore_U))
+    np.testing.assert_allclose(m.with_alignment(R_H0, arm_alignment(up_H, fore_H, up_U, fore_U)), R_U0, atol=1e-12)
+    # The whole operator arm turns by G (hand rigid with the forearm) and the robot arm by G2:
+    # the robot hand turns by G2 with its forearm (wrist joints unchanged).
+    G, G2 = pin.exp3(np.array([0.3, -0.2, 0.5])), pin.exp3(np.array([-0.1, 0.4, 0.2]))
+    A = arm_alignment(G @ up_H, G @ fore_H, G2 @ up_U, G2 @ fore_U)
+    np.testing.assert_allclose(m.with_alignment(G @ R_H0, A), G2 @ R_U0, atol=1e-9)
