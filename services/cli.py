@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("services.evaluation.bench_cli", "benchmarks: solvers, pipeline"),
     "record": ("services.recorder.record_cli", "record every bus message to MCAP"),
     "replay": ("services.recorder.replay_cli", "replay an MCAP recording onto the bus"),
+    "record-bench": ("services.recorder.bench_cli", "recorder loss/memory benchmark: N messages at R Hz (JSON)"),
 }
 
 

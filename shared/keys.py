@@ -96,6 +96,23 @@ class Keys:
         return None
 
     @staticmethod
+    def with_session(key: str, session: str) -> str:
+        """``key`` moved from its own session to ``session`` (``mimic/<s>/x`` -> ``mimic/<session>/x``).
+
+        Raises:
+            ValueError: ``key`` is not a mimic session key, or ``session`` is not one key chunk.
+        """
+        old = Keys.session_of(key)
+        if old is None:
+            raise ValueError(f"{key!r} is not a {ROOT}/<session>/... key")
+        return Keys(session).prefix + key[len(Keys(old).prefix) :]
+
+    @staticmethod
+    def in_any_session(expr: str) -> str:
+        """A key expression relative to a session (``mocap/frame``) made absolute over every session."""
+        return expr if expr.startswith(f"{ROOT}/") else f"{ROOT}/*/{expr}"
+
+    @staticmethod
     def session_of(key: str) -> str | None:
         parts = key.split("/")
         return parts[1] if len(parts) > 1 and parts[0] == ROOT else None

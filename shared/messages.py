@@ -134,7 +134,9 @@ def _matrix(x: Any, where: str, rows: int, cols: int, names: list[str] | None = 
             raise MessageError("shape", f"{where}[{label}]: expected {cols} numbers, got {row!r}"[:200])
         for v in row:
             if type(v) is not float and (type(v) is not int):
-                raise MessageError("type", f"{where}[{names[i] if names else i}]: expected number, got {type(v).__name__}")
+                raise MessageError(
+                    "type", f"{where}[{names[i] if names else i}]: expected number, got {type(v).__name__}"
+                )
     arr = np.array(items, dtype=float).reshape(rows, cols)
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
@@ -146,7 +148,8 @@ def _matrix(x: Any, where: str, rows: int, cols: int, names: list[str] | None = 
 def _quats(x: Any, where: str, rows: int, names: list[str] | None = None) -> np.ndarray:
     """(rows, 4) unit quaternions, normalised."""
     q = _matrix(x, where, rows, 4, names)
-    norms = np.linalg.norm(q, axis=1)
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(q, axis=1)
     bad = np.abs(norms - 1.0) > QUAT_NORM_TOL
     if bad.any():
         i = int(np.argmax(bad))
@@ -159,7 +162,8 @@ def _quats(x: Any, where: str, rows: int, names: list[str] | None = None) -> np.
 
 def _quat(x: Any, where: str) -> np.ndarray:
     q = _vec(x, where, 4)
-    norm = float(np.linalg.norm(q))
+    with np.errstate(over="ignore"):  # huge finite components: the norm is inf, rejected below
+        norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise MessageError("quaternion", f"{where}: quaternion norm {norm:.6f} is not 1 (w, x, y, z expected)")
     return q / norm

@@ -1,0 +1,1 @@
+"""Record every bus message to MCAP and replay recordings onto the bus."""
