@@ -12,8 +12,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from services.evaluation.metrics import REACHABLE_TOL, reachable_mask, summarise, trace_metrics
-from services.evaluation.runner import REFERENCE_ALGO, load_and_retarget, run_algorithm
+from services.evaluation.runner import EVAL_RETARGET, REFERENCE_ALGO, load_and_retarget, run_algorithm
 from services.solver.algorithms import ALGORITHMS
+from services.solver.core import SolverConfig
 from shared.robot.pinocchio_model import build_robot_model
 
 log = logging.getLogger("mimic.eval")
@@ -31,6 +32,42 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mapping", default="bounded", choices=("bounded", "paper", "incremental"))
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
+    p.add_argument(
+        "--wrist-orientation-level",
+        type=int,
+        default=None,
+        choices=(1, 2, 3),
+        help="1: the paper's hierarchy (wrist poses > elbows > posture); 2: wrist positions > elbows + "
+        "wrist orientations > posture; 3: wrist positions > elbows > wrist orientations (default: SolverConfig's)",
+    )
+    p.add_argument(
+        "--elbow-placement",
+        default=EVAL_RETARGET["elbow_placement"],
+        choices=("swivel", "mapped"),
+        help="swivel: elbow targets reachable with the wrist target; mapped: the paper's eqs. 1-3 per axis",
+    )
+    p.add_argument(
+        "--velocity-tau",
+        type=float,
+        default=EVAL_RETARGET["velocity_tau"],
+        help="retarget velocity low-pass time constant [s] (0 = raw finite differences)",
+    )
+    p.add_argument(
+        "--orientation-reference",
+        default=EVAL_RETARGET["orientation_reference"],
+        choices=("forearm", "posture", "rest"),
+        help="eq. 4 orientation mapping: forearm-relative (default), calibration posture, or the profile rest",
+    )
+    p.add_argument(
+        "--wqp-weights",
+        default=None,
+        help="wqp level weights, comma list (default 1,0.3,1); 1,0.01,1 is a wrist-only 'traditional QP'",
+    )
+    p.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's setup: orientation level 1, mapped elbows, eq. 4 against the rest pose",
+    )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -42,17 +79,38 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     if unknown:
         raise SystemExit(f"unknown algorithms {unknown}; known: {sorted(ALGORITHMS)}")
     robot = build_robot_model(with_waist=not args.no_waist)
+    level = getattr(args, "wrist_orientation_level", None)
+    elbows = getattr(args, "elbow_placement", EVAL_RETARGET["elbow_placement"])
+    oref = getattr(args, "orientation_reference", EVAL_RETARGET["orientation_reference"])
+    if getattr(args, "paper", False):
+        level, elbows, oref = 1, "mapped", "rest"
+    if elbows == "mapped" and oref == "forearm":
+        oref = "posture"  # the forearm map needs swivel elbows
+    solver = {} if level is None else {"wrist_orientation_level": level}
+    wq = getattr(args, "wqp_weights", None)
+    wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
+    retarget = {**EVAL_RETARGET, "elbow_placement": elbows, "orientation_reference": oref}
+    retarget["velocity_tau"] = getattr(args, "velocity_tau", EVAL_RETARGET["velocity_tau"])
     # The reachable-tick mask comes from the strict hierarchy, so run it first.
     order = [REFERENCE_ALGO] + [a for a in algos if a != REFERENCE_ALGO]
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(order), desc="eval", unit="run", file=sys.stderr)
     for path in args.clips:
-        clip, targets = load_and_retarget(Path(path), robot, args.mapping)
+        clip, targets = load_and_retarget(Path(path), robot, args.mapping, retarget)
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
         mask = None
         for algo in order:
             bar.set_postfix_str(f"{clip.name[:28]} {algo}")
-            tr = run_algorithm(robot, targets, algo, qp=args.qp, rate=args.rate, sim=not args.no_sim)
+            tr = run_algorithm(
+                robot,
+                targets,
+                algo,
+                qp=args.qp,
+                rate=args.rate,
+                sim=not args.no_sim,
+                solver=solver,
+                wqp_weights=wqp_weights,
+            )
             if algo == REFERENCE_ALGO:
                 mask = reachable_mask(tr)
             if algo in algos:
@@ -70,10 +128,19 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             "qp": args.qp,
             "rate_hz": args.rate,
             "mapping": args.mapping,
+            "retarget": retarget,
+            "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
+            "solver": {
+                "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
+                "gain": SolverConfig().gain,
+                "orientation_gain": SolverConfig().orientation_gain,
+                "damping": list(SolverConfig().damping),
+            },
             "dof": robot.nq,
             "sim": not args.no_sim,
             "reachable_tol": REACHABLE_TOL,
-            "error_reference": "retargeted target at each control tick (extrapolated with its velocity)",
+            "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
+            "tick's command is for (t + dt)",
         },
     }
     return result, traces

@@ -140,7 +140,7 @@ def write_report(result: dict, traces: dict[tuple[str, str], Trace], out: Path) 
         "",
         "| algo | wrist mean | wrist max | elbow mean | elbow max | wrist mean (reachable) | wrist max (reachable)"
         " | wrist sim mean | elbow sim mean | wrist rot mean [deg] | solve mean | p99 | limit violations |",
-        "|---" * 14 + "|",
+        "|---" * 13 + "|",
     ]
     for a, m in s.items():
         lines.append(

@@ -45,8 +45,9 @@ from shared.messages import (
     TaskTargets,
     peek_type,
 )
+from shared.rotations import quat_xyzw
 
-from .robot_visual import RobotVisual, quat_xyzw
+from .robot_visual import RobotVisual
 
 log = logging.getLogger("mimic.log")
 

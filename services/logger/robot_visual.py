@@ -18,11 +18,6 @@ import pinocchio as pin
 from shared.robot.profile import RobotProfile, load_profile
 
 
-def quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (4,) x, y, z, w of a rotation matrix (3, 3)."""
-    return pin.Quaternion(np.asarray(R, dtype=float)).coeffs()
-
-
 @dataclass(frozen=True)
 class VisualMesh:
     """One visual geometry: entity name, mesh file, RGBA colour (4,), moves with q or not."""

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from shared.bus import add_bus_args
 
-from .mapping import MODES
+from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from .workspace import DEFAULT_SAMPLES, Shrink
 
 log = logging.getLogger("mimic.retarget")
@@ -44,6 +44,20 @@ def add_retarget_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--gain", type=float, default=1.0, help="incremental mapping gain k")
     g.add_argument("--velocity-tau", type=float, default=0.05, help="velocity low-pass time constant [s]")
     g.add_argument("--elbow-rotation", action="store_true", help="publish elbow orientations as used (use_rotation)")
+    g.add_argument(
+        "--elbow-placement",
+        choices=ELBOW_PLACEMENTS,
+        default=ELBOW_PLACEMENTS[0],
+        help="swivel (default): elbow targets at the robot's arm lengths, reachable together with the wrist; "
+        "mapped: the paper's eqs. 1-3 per axis",
+    )
+    g.add_argument(
+        "--orientation-reference",
+        choices=ORIENTATION_REFERENCES,
+        default=ORIENTATION_REFERENCES[0],
+        help="eq. 4's robot reference: forearm (default, hand relative to forearm; needs swivel), posture "
+        "(robot posture at the calibration targets) or rest (the profile rest pose, the paper read literally)",
+    )
 
 
 def config_from_args(args: argparse.Namespace):
@@ -60,6 +74,8 @@ def config_from_args(args: argparse.Namespace):
         gain=args.gain,
         velocity_tau=args.velocity_tau,
         elbow_rotation=args.elbow_rotation,
+        elbow_placement=args.elbow_placement,
+        orientation_reference=args.orientation_reference,
         auto_calibrate=not getattr(args, "no_auto_calibrate", False),
     )
 

@@ -30,6 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 
 MODES: tuple[str, ...] = ("bounded", "paper", "incremental")
+#: Elbow target placement (first = default): see :class:`services.retarget.retargeter.RetargetConfig`.
+ELBOW_PLACEMENTS: tuple[str, ...] = ("swivel", "mapped")
+#: Eq. (4) robot reference orientation (first = default).
+ORIENTATION_REFERENCES: tuple[str, ...] = ("forearm", "posture", "rest")
 #: Spans below this are treated as degenerate [m].
 _EPS = 1e-9
 #: Clamps smaller than this are rounding, not counted [m].

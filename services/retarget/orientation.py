@@ -14,21 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from shared.rotations import matrix_to_quat, quat_to_matrix
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation from a unit quaternion (4,) w, x, y, z."""
-    w, x, y, z = (float(v) for v in q)
-    quat = pin.Quaternion(w, x, y, z)
-    quat.normalize()
-    return quat.toRotationMatrix()
-
-
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (4,) w, x, y, z with w >= 0 from a rotation (3, 3)."""
-    quat = pin.Quaternion(np.asarray(R, dtype=float))
-    quat.normalize()
-    q = np.array([quat.w, quat.x, quat.y, quat.z])
-    return -q if q[0] < 0 else q
+__all__ = ["matrix_to_quat", "quat_to_matrix"]
 
 
 def angular_velocity(R_prev: np.ndarray, R: np.ndarray, dt: float) -> np.ndarray:
@@ -52,3 +40,130 @@ class OrientationMap:
     def __call__(self, R_H: np.ndarray) -> np.ndarray:
         """Robot target orientation ``W_R'_U`` (3, 3) for operator orientation ``W_R'_H`` (3, 3)."""
         return np.asarray(R_H, dtype=float) @ self.R_HU
+
+
+def calibration_posture(
+    robot, side: str, wrist: np.ndarray, elbow: np.ndarray | None = None, iters: int = 100
+) -> np.ndarray:
+    """Robot arm posture for the operator's calibration pose: wrist frame at ``wrist`` (3,) [m].
+
+    Damped least squares over the shoulder and elbow joints from the rest pose, wrist joints at
+    zero (the operator calibrates with relaxed, straight wrists). With ``elbow`` (3,) [m] the elbow
+    frame is placed too (use a reachable pair, see :mod:`.elbow`); without, the swivel stays near
+    the rest pose. Returns q (nq,) [rad] within the limits.
+    """
+    import pinocchio as pin
+
+    names = list(robot.joint_names)
+    arm = [i for i, n in enumerate(names) if n.startswith(f"{side}_shoulder") or n == f"{side}_elbow_joint"]
+    q = robot.q_rest.copy()
+    for i, n in enumerate(names):
+        if n.startswith(f"{side}_wrist"):
+            q[i] = 0.0
+    goals = [(robot.frame_id(f"{side}_wrist"), np.asarray(wrist, dtype=float))]
+    if elbow is not None:
+        goals.append((robot.frame_id(f"{side}_elbow"), np.asarray(elbow, dtype=float)))
+    for _ in range(iters):
+        data = robot.forward(q)
+        err = np.concatenate([p - data.oMf[f].translation for f, p in goals])
+        if np.linalg.norm(err) < 1e-7:
+            break
+        J = np.vstack(
+            [pin.computeFrameJacobian(robot.model, data, q, f, pin.LOCAL_WORLD_ALIGNED)[:3, arm] for f, _ in goals]
+        )
+        q[arm] += np.linalg.solve(J.T @ J + 1e-6 * np.eye(len(arm)), J.T @ err)
+        q = robot.clip(q)
+    return q
+
+
+def calibration_orientations(
+    robot, rest_targets: dict[str, np.ndarray], elbows: dict[str, np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
+    """Target -> (3, 3) robot orientation ``W_R_U`` in the calibration posture of each arm.
+
+    Args:
+        robot: reduced robot model (arms, waist at rest).
+        rest_targets: target -> (3,) robot position [m] of the operator's calibration pose (``U_ps``).
+        elbows: side -> (3,) elbow position [m] reachable with that wrist (None: swivel near rest).
+    """
+    out = {}
+    for side in ("left", "right"):
+        el = None if elbows is None else elbows.get(side)
+        q = calibration_posture(robot, side, rest_targets[f"{side}_wrist"], el)
+        poses = robot.frame_poses(q, names=(f"{side}_wrist", f"{side}_elbow"))
+        for t, (_p, R) in poses.items():
+            out[t] = R.copy()
+    return out
+
+
+def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotation (3, 3) turning direction a (3,) onto direction b (3,)."""
+    a = np.asarray(a, dtype=float) / np.linalg.norm(a)
+    b = np.asarray(b, dtype=float) / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return pin.exp3(np.pi * perp / np.linalg.norm(perp))
+    return pin.exp3(axis / s * np.arctan2(s, c))
+
+
+#: sin of the elbow angle under which an arm counts as straight (its plane is then undefined).
+STRAIGHT_SIN = 0.1
+
+
+def arm_frame(upper: np.ndarray, fore: np.ndarray) -> np.ndarray | None:
+    """Forearm frame (3, 3): x along the forearm, z normal to the arm plane (the elbow axis).
+
+    Args:
+        upper: (3,) shoulder -> elbow. fore: (3,) elbow -> wrist.
+
+    Returns:
+        The frame, or None when the arm is nearly straight (plane undefined).
+    """
+    x = np.asarray(fore, dtype=float) / np.linalg.norm(fore)
+    z = np.cross(np.asarray(upper, dtype=float) / np.linalg.norm(upper), x)
+    if np.linalg.norm(z) < STRAIGHT_SIN:
+        return None
+    z /= np.linalg.norm(z)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def arm_alignment(up_H: np.ndarray, fore_H: np.ndarray, up_U: np.ndarray, fore_U: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) taking the operator's forearm frame onto the robot's (smallest rotation of the
+    forearm directions when either arm is straight)."""
+    F_H, F_U = arm_frame(up_H, fore_H), arm_frame(up_U, fore_U)
+    if F_H is None or F_U is None:
+        return align(fore_H, fore_U)
+    return F_U @ F_H.T
+
+
+class ForearmOrientationMap(OrientationMap):
+    """Eq. (4) with the forearms matched: the hand turns *relative to its forearm* as the operator's does.
+
+    Eq. (4) copies the hand's absolute orientation, but the robot's forearm does not point where the
+    operator's does (positions are scaled per axis, elbows placed for the robot's arm lengths), so
+    the robot wrist joints would have to make up the difference (tens of degrees on real clips).
+    Here the operator's hand rotation is first carried by the rotation ``A`` taking the operator's
+    forearm frame (forearm direction, arm-plane normal) onto the robot's target one, with the
+    calibration's own alignment removed::
+
+        W_R'_U = A' W_R'_H (W_R_H)^-1 A^-1 W_R_U
+
+    At calibration it gives ``W_R_U``; an operator who keeps the wrist still gets the robot hand
+    that moves with its forearm.
+
+    Args:
+        R_H_rest, R_U_rest: as :class:`OrientationMap` (``R_U_rest``: the robot's calibration posture).
+        A_rest: (3, 3) :func:`arm_alignment` at calibration.
+    """
+
+    def __init__(self, R_H_rest: np.ndarray, R_U_rest: np.ndarray, A_rest: np.ndarray):
+        super().__init__(R_H_rest, R_U_rest)
+        self.right = self.R_H_rest.T @ np.asarray(A_rest).T @ self.R_U_rest  # the fixed right-hand factor
+
+    def with_alignment(self, R_H: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """Robot target orientation (3, 3) for operator hand R_H (3, 3) and forearm alignment A (3, 3)."""
+        return np.asarray(A) @ np.asarray(R_H, dtype=float) @ self.right

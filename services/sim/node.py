@@ -45,6 +45,9 @@ def parse_follow(payload: bytes) -> str:
             value = json.loads(payload.decode())
         except (UnicodeDecodeError, json.JSONDecodeError):
             value = payload.decode(errors="replace").strip()
+    if not isinstance(value, (str, dict)):
+        # One printable byte is also valid msgpack (b"b" unpacks to the integer 98): read it as text.
+        value = payload.decode(errors="replace").strip()
     if isinstance(value, dict):
         value = value.get("follow")
     if not isinstance(value, str) or not value:

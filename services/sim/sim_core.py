@@ -35,6 +35,7 @@ from shared.messages import TARGET_NAMES, Header, JointCommand, Pose, RobotState
 from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
 from shared.robot.profile import RobotProfile, load_profile
+from shared.rotations import matrix_to_quat
 
 log = logging.getLogger("mimic.sim")
 
@@ -86,12 +87,6 @@ class CommandError(ValueError):
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
         self.detail = detail
-
-
-def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    q = np.empty(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
-    return q
 
 
 class SimCore:
@@ -298,7 +293,7 @@ class SimCore:
         out = {}
         for name in TARGET_NAMES:
             p, R = self.robot.frame_pose(name)
-            out[name] = Pose(np.array(p, dtype=float), _quat_wxyz(R))
+            out[name] = Pose(np.array(p, dtype=float), matrix_to_quat(R))
         return out
 
     def state(self) -> RobotState:

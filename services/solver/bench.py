@@ -37,17 +37,13 @@ from services.solver.algorithms import ALGORITHMS, USES_QP
 from services.solver.core import SolverConfig, SolverCore
 from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
+from shared.rotations import matrix_to_quat
 
 log = logging.getLogger("mimic.bench.solvers")
 
 #: Seed 000, Fig. 9(f): per-solve time on an i7-12700H [ms].
 PAPER_MS = {"hqp-nullspace": 38.9, "hqp-original": 83.9, "wqp": 136.0}
 MOCAP_RATE = 100.0
-
-
-def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    q = pin.Quaternion(R)
-    return np.array([q.w, q.x, q.y, q.z])
 
 
 def synthetic_targets(robot: RobotModel, seconds: float, seed: int = 0) -> list[TaskTargets]:
@@ -71,7 +67,7 @@ def synthetic_targets(robot: RobotModel, seconds: float, seed: int = 0) -> list[
         for name in TARGET_NAMES:
             v = (ahead[name][0] - behind[name][0]) / (2 * h)
             w = pin.log3(ahead[name][1] @ behind[name][1].T) / (2 * h)
-            targets[name] = Target(now[name][0].copy(), _quat_wxyz(now[name][1]), v, w)
+            targets[name] = Target(now[name][0].copy(), matrix_to_quat(now[name][1]), v, w)
         out.append(TaskTargets(Header(i, t), targets))
     return out
 

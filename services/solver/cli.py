@@ -23,6 +23,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--gain", type=float, default=None, help="task error gain [1/s] (default: SolverConfig)")
     parser.add_argument(
+        "--orientation-gain",
+        type=float,
+        default=None,
+        help="wrist orientation error gain [1/s] when orientations are not on level 1 (default: SolverConfig)",
+    )
+    parser.add_argument(
+        "--wrist-orientation-level",
+        type=int,
+        choices=(1, 2, 3),
+        default=None,
+        help="1: the paper's hierarchy (wrist poses > elbows > posture); 2 (default): wrist positions > "
+        "elbows + wrist orientations > posture; 3: wrist positions > elbows > wrist orientations",
+    )
+    parser.add_argument(
         "--closed-loop",
         action="store_true",
         help="re-anchor on the measured joints when they drift more than the resync threshold from the command",

@@ -36,6 +36,8 @@ from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
 
 WRISTS = ("left_wrist", "right_wrist")
+#: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
+MAX_GAIN_DT = 0.4
 ELBOWS = ("left_elbow", "right_elbow")
 
 
@@ -52,14 +54,33 @@ class SolverConfig:
         wrist_orientation_cost: weight of wrist orientation rows [1/rad] (0 = position only).
         elbow_cost: weight of elbow position rows [1/m].
         posture_cost: weight of the posture rows [1/rad].
-        gain: task error gain [1/s] (wrists and elbows).
+        gain: task error gain [1/s] (wrist and elbow positions; the paper's wrist poses at level 1).
+            Mocap arrives at 30-120 fps and each frame moves the extrapolated reference by a step
+            the solver must close before the next: 200 halves the wrist error of 50 on the real
+            clips (0.17 -> 0.07 cm mean) and lowers the elbow error too. Capped at
+            ``MAX_GAIN_DT * rate`` so a low control rate stays stable.
+        orientation_gain: error gain [1/s] of the wrist orientations when they are not on level 1;
+            None = ``gain``. Lower than the position gain: the G1 wrist's orientation freedom is
+            small once positions are held, and a stiff orientation task drives the wrist joints
+            into their stops (wrist flips at 100-200).
         posture_gain: posture error gain [1/s].
         damping: per-level damping ``eps ||z||^2`` (level 1, then lower levels): keeps joint
-            velocities finite near singular directions; level 1 gets far less so the wrists stay exact.
+            velocities finite near singular directions (the velocity limits bound them anyway).
+            1e-3 on the lower levels left elbows 0.7 mm and orientations 3.6 deg off on exactly
+            reachable targets (tests/evaluation); 1e-5 brings that to 0.03 mm and 0.14 deg.
         smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
         resync_threshold: re-anchor on the measured joints beyond this drift [rad].
         infeasible_tol: level-1 residual above which the status is ``infeasible``.
+        wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
+            2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
+            posture. 3: wrist positions > elbows > wrist orientations (+ posture). 1: the paper's
+            full wrist poses > elbows > posture. On the 16 real clips (``mimic eval``, DAQP): with 1
+            the wrist pose is reachable on about half the ticks only (eq. 4 orientations and
+            positions disagree) and the wrists miss by about 1 cm; with 3 the wrists and elbows are
+            best but the G1's wrist frame (4.6 cm past the pitch axis) leaves the orientations
+            about one free joint, 30 deg mean error; with 2 orientations are within 3 deg for
+            about 0.6 cm more elbow error.
     """
 
     algo: str = "hqp-nullspace"
@@ -70,20 +91,23 @@ class SolverConfig:
     wrist_orientation_cost: float = 0.3
     elbow_cost: float = 1.0
     posture_cost: float = 1e-2
-    gain: float = 50.0
+    gain: float = 200.0
+    orientation_gain: float | None = 30.0
     posture_gain: float = 5.0
-    damping: tuple[float, ...] = (1e-6, 1e-3)
+    damping: tuple[float, ...] = (1e-6, 1e-5)
     smoothing: bool = True
     smoothing_ticks: int = 4
     target_horizon: float = 0.05
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     infeasible_tol: float = 1e-3
-    wrist_orientation_level: int = 1
+    wrist_orientation_level: int = 2
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate <= 10000.0:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
+        if self.wrist_orientation_level not in (1, 2, 3):
+            raise ValueError(f"wrist_orientation_level must be 1 (paper), 2 or 3, got {self.wrist_orientation_level}")
 
     @property
     def dt(self) -> float:
@@ -105,22 +129,28 @@ class SolverCore:
         self.dt = cfg.dt
         self.n = robot.nq
         self.configuration = Configuration(robot)
-        self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, cfg.gain) for e in ELBOWS]
+        gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
+        self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, gain) for e in ELBOWS]
         self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
         if cfg.wrist_orientation_level == 1:
             # The paper's hierarchy: full wrist poses, then elbows, then posture.
-            self.wrist_tasks = [
-                FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS
-            ]
+            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, gain) for w in WRISTS]
             self.orientation_tasks: list[FrameTask] = []
             self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
         else:
             # Wrist positions, elbows, then wrist orientations: position and swivel use the
             # shoulder/elbow, orientation what is left (mostly the wrist joints), so
             # independently mapped orientations cannot spoil the wrist and elbow positions.
-            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, cfg.gain) for w in WRISTS]
-            self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, cfg.gain) for w in WRISTS]
-            self.levels = [self.wrist_tasks, self.elbow_tasks, self.orientation_tasks, [self.posture_task]]
+            # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
+            # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
+            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
+            og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
+            self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
+            if cfg.wrist_orientation_level == 2:
+                # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
+                self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
+            else:
+                self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
         self.limits = [ConfigurationLimit(robot.lower, robot.upper), VelocityLimit(robot.vmax)]
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.smoother = QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks) if cfg.smoothing else None
@@ -192,8 +222,14 @@ class SolverCore:
             qd = np.minimum(np.maximum(qd, lb), ub)
             if held:
                 status = "held"
+                reason = "; ".join([*held, reason] if reason else held)
             elif sol.residuals and sol.residuals[0] > cfg.infeasible_tol:
                 status = "infeasible"
+                why = (
+                    f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {cfg.infeasible_tol:g}: "
+                    "target out of reach or faster than the joint limits allow"
+                )
+                reason = f"{why}; {reason}" if reason else why
             else:
                 status = "ok"
         else:
@@ -215,20 +251,22 @@ class SolverCore:
             self.qd_out[:] = qd
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
-    def _set_targets(self, t: float) -> bool:
-        """Load the tracker's targets into the tasks at time t; True when any target is held or stale."""
+    def _set_targets(self, t: float) -> list[str]:
+        """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""
         conf = self.configuration
-        held = False
+        missing: list[str] = []
+        held: list[str] = []
         for task in self.wrist_tasks:
             s = self.tracker.sample(task.frame, t)
             if s is None:
                 task.set_target_from_configuration(conf)
-                held = True
+                missing.append(task.frame)
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
             if not self.orientation_tasks:
                 task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
-            held |= s.held
+            if s.held:
+                held.append(task.frame)
         for task in self.orientation_tasks:
             s = self.tracker.sample(task.frame, t)
             if s is None:
@@ -240,11 +278,19 @@ class SolverCore:
             s = self.tracker.sample(task.frame, t)
             if s is None:
                 task.set_target_from_configuration(conf)
-                held = True
+                missing.append(task.frame)
                 continue
             task.set_target(s.p, s.v, check=False)
-            held |= s.held
-        return held or self.tracker.stale(t)
+            if s.held:
+                held.append(task.frame)
+        why: list[str] = []
+        if self.tracker.stale(t):
+            why.append(f"targets stale (none for {self.tracker.timeout:g} s): holding")
+        elif held:
+            why.append("held (invalid in the mocap frame): " + ", ".join(held))
+        if missing:
+            why.append("never received: " + ", ".join(missing))
+        return why
 
     def _command(
         self, status: str, residuals: list[float], iters: int, active: int, reason: str, t_start: float, t: float

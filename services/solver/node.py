@@ -41,7 +41,12 @@ class JointMap:
 
 def config_from_args(args: argparse.Namespace) -> SolverConfig:
     """SolverConfig from the ``mimic solve`` flags."""
-    optional = {"wrist_orientation_cost": args.orientation_weight, "gain": args.gain}
+    optional = {
+        "wrist_orientation_cost": args.orientation_weight,
+        "gain": args.gain,
+        "orientation_gain": getattr(args, "orientation_gain", None),
+        "wrist_orientation_level": getattr(args, "wrist_orientation_level", None),
+    }
     return SolverConfig(
         algo=args.algo,
         qp=args.qp,
@@ -67,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         # A solver started mid-stream continues from where the robot is: wait briefly for its state.
         state = states.take(timeout=args.startup_wait)
         q0 = joint_map(state) if state is not None else None
+        anchored = q0 is not None
         if q0 is not None:
             core.reset(q0)
             log.info("initialised from measured state (sim following %r)", state.solver_id)
@@ -97,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
                 msg = targets.take()
             t = time.monotonic()
             state = states.take()
+            if not anchored and state is not None and (q_first := joint_map(state)) is not None:
+                # Started from rest because no state came in time (a loaded machine): re-anchor on the
+                # first one, or the first command would jump from the robot's pose to the rest pose.
+                core.reset(q_first)
+                anchored = True
+                log.info("re-initialised from the first robot state (sim following %r)", state.solver_id)
             q_meas = None
             # The solver integrates its own commands (feeding back the servo lag would add it to every
             # step, and re-anchoring on it makes the command jump). Measured joints re-anchor only with

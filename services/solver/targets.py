@@ -8,18 +8,7 @@ import numpy as np
 import pinocchio as pin
 
 from shared.messages import TARGET_NAMES, Header, TaskTargets
-
-
-def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation of a unit quaternion (4,) w, x, y, z."""
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+from shared.rotations import quat_to_matrix
 
 
 @dataclass(slots=True)
@@ -85,7 +74,7 @@ class TargetTracker:
                 continue
             if tg.valid:
                 self._store[name] = _Stored(
-                    tg.p.copy(), quat_wxyz_to_matrix(tg.q), tg.v.copy(), tg.w.copy(), tg.use_rotation, t, False
+                    tg.p.copy(), quat_to_matrix(tg.q), tg.v.copy(), tg.w.copy(), tg.use_rotation, t, False
                 )
             else:
                 self.invalid_count += 1

@@ -4,6 +4,20 @@
 
 Priorities are only as strict as the weights make them: a lower level can pull
 a higher one off its target, which is what the HQPs are compared against.
+
+Same tasks, gains, limits and damping as the HQPs (the levels SolverCore builds);
+only the priority is soft. Level weights (1.0, 0.3, 1.0), squared in the objective:
+
+* level 1, wrists (1.0): the main objective, as in the paper's "traditional QP";
+* level 2, elbows (0.3): present but subordinate, so they bend to the wrists; with
+  elbow targets the robot can reach together with its wrist targets (retarget
+  ``elbow_placement="swivel"``) the weight rarely matters, with the paper's per-axis
+  mapped elbows it sets how far the elbow error trades against the wrist's;
+* level 3 (1.0 x each task's own cost): posture (cost 1e-2) and, with
+  ``wrist_orientation_level=3``, the wrist orientations (cost 0.3).
+
+The seed does not give its weights; its WQP elbow error (5.58 cm mean) is what an
+elbow that is nearly ignored gives, so this WQP is the stronger of the two.
 """
 
 from __future__ import annotations

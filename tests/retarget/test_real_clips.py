@@ -10,6 +10,9 @@ from services.retarget.orientation import quat_to_matrix
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from shared.messages import TARGET_NAMES
 
+#: Seed 000's eqs. (1)-(4) as written (the product defaults are swivel elbows and forearm orientations).
+PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
+
 clip_mod = pytest.importorskip("services.ingest.clip", reason="ingest service (services/ingest/clip.py) not available")
 
 
@@ -29,11 +32,11 @@ def run(retargeter, frames):
 
 
 def test_every_clip_in_the_box_bounded_mode_auto_calibrated(clips, robot14, workspace):
-    """The service's default path: bounded mode, calibrated from the clip's first frame (arms hanging)."""
+    """Bounded mode, calibrated from the clip's first frame (arms hanging), eqs. (1)-(3) for every target."""
     assert len(clips) >= 10
     n_checked = 0
     for name, clip in clips.items():
-        r = Retargeter(RetargetConfig(mode="bounded"), workspace=workspace, robot=robot14)
+        r = Retargeter(RetargetConfig(mode="bounded", **PAPER), workspace=workspace, robot=robot14)
         for out in run(r, frames_of(clip)):
             for t in TARGET_NAMES:
                 tgt = out.targets[t]
@@ -49,8 +52,10 @@ def test_every_clip_maps_inside_without_clamping_when_calibrated_from_the_clip(c
     for name, clip in clips.items():
         frames = frames_of(clip)
         cal = from_recording(frames, name=name)
-        paper = Retargeter(RetargetConfig(mode="paper"), calibration=cal, workspace=workspace, robot=robot14)
-        bounded = Retargeter(RetargetConfig(mode="bounded"), calibration=cal, workspace=workspace, robot=robot14)
+        paper = Retargeter(RetargetConfig(mode="paper", **PAPER), calibration=cal, workspace=workspace, robot=robot14)
+        bounded = Retargeter(
+            RetargetConfig(mode="bounded", **PAPER), calibration=cal, workspace=workspace, robot=robot14
+        )
         for a, b in zip(run(paper, frames), run(bounded, frames)):
             for t in TARGET_NAMES:
                 assert workspace.contains(t, a.targets[t].p, tol=1e-9), f"{name} {t}"
@@ -61,7 +66,7 @@ def test_every_clip_maps_inside_without_clamping_when_calibrated_from_the_clip(c
 def test_first_frame_rest_gives_robot_rest_orientation_on_real_clips(clips, robot14, workspace):
     rest = robot14.frame_poses(robot14.q_rest, names=TARGET_NAMES)
     for clip in clips.values():
-        r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+        r = Retargeter(RetargetConfig(**PAPER), workspace=workspace, robot=robot14)
         out = r.step(clip.frame(0, seq=1))
         for t in TARGET_NAMES:
             np.testing.assert_allclose(quat_to_matrix(out.targets[t].q), rest[t][1], atol=1e-9)
@@ -79,3 +84,26 @@ def test_velocities_are_consistent_with_positions_on_a_real_clip(clips, robot14,
     r = Retargeter(RetargetConfig(velocity_tau=0.05), workspace=workspace, robot=robot14)
     vf = np.array([o.targets["right_wrist"].v for o in run(r, frames_of(clip))])
     assert np.linalg.norm(np.diff(vf, axis=0), axis=1).mean() < np.linalg.norm(np.diff(v, axis=0), axis=1).mean()
+
+
+def test_default_elbow_targets_sit_at_the_robot_arm_lengths_on_real_clips(clips, robot14, workspace):
+    """Product defaults (swivel elbows): every valid elbow target is at the robot's upper-arm length
+    from its shoulder centre and its forearm length from the wrist target, so both are reachable,
+    unless bounded mode pulled it onto the workspace box; the wrist stays within the arm's reach."""
+    on_sphere = 0
+    for name, clip in clips.items():
+        r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+        for out in run(r, frames_of(clip)):
+            for side, arm in r.arms.items():
+                t = f"{side}_elbow"
+                w, e = out.targets[f"{side}_wrist"], out.targets[t]
+                if not (w.valid and e.valid):
+                    continue
+                assert workspace.contains(t, e.p, tol=1e-9), (name, t)
+                assert arm.reach[0] - 1e-9 <= np.linalg.norm(w.p - arm.centre) <= arm.reach[1] + 1e-9, (name, side)
+                on_box = np.any(np.isclose(e.p, workspace.lower[t]) | np.isclose(e.p, workspace.upper[t]))
+                lengths_ok = abs(np.linalg.norm(e.p - arm.centre) - arm.upper) < 1e-6
+                lengths_ok &= abs(np.linalg.norm(w.p - e.p) - arm.fore) < 1e-6
+                assert lengths_ok or on_box, (name, t, out.hdr.seq)
+                on_sphere += lengths_ok
+    assert on_sphere > 2 * 1000

@@ -12,12 +12,16 @@ from services.retarget.orientation import matrix_to_quat, quat_to_matrix
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from shared.messages import TARGET_NAMES, TaskTargets
 
+#: These tests check seed 000's eqs. (1)-(4) as written: per-axis elbows, eq. 4 against the rest pose.
+#: The product defaults (swivel elbows, forearm-relative orientation) are covered in test_elbow.py.
+PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
+
 
 @pytest.fixture()
 def make(robot14, workspace):
     def _make(**cfg):
         cal = cfg.pop("calibration", None)
-        return Retargeter(RetargetConfig(**cfg), calibration=cal, workspace=workspace, robot=robot14)
+        return Retargeter(RetargetConfig(**{**PAPER, **cfg}), calibration=cal, workspace=workspace, robot=robot14)
 
     return _make
 

@@ -1,0 +1,514 @@
+"""``python -m services.evaluation.soak``: the real stack under sustained mocap load.
+
+Starts the router, retarget, solver and sim (and optionally the logger) as real
+processes with the commands of docker-compose.yml, publishes HumanFrames of the
+bundled demo motion at ``--rate`` Hz for ``--duration`` s from its own session,
+and measures
+
+* end-to-end latency per second of the run (first RobotState carrying a frame's
+  ``seq`` minus the frame's ``hdr.t0``), so a latency that grows with time shows;
+* the frames each service dropped (newest wins) from their ServiceStatus counts;
+* every service's resident memory (``/proc/<pid>/status`` VmRSS) every
+  ``--sample-period`` s: start, end, max and the least-squares slope [MB/min].
+
+It prints one JSON report (also written to ``--json``). The :class:`LocalStack`,
+:class:`Observer` and :class:`FramePublisher` helpers are reused by the fault
+injection tests in ``tests/reliability``.
+
+Examples::
+
+    python -m services.evaluation.soak --rate 1000 --duration 600 --json runs/soak.json
+    python -m services.evaluation.soak --rate 10000 --duration 10 --json runs/burst.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from services.launcher.stack import load_stack, local_environment
+from services.launcher.supervisor import Supervisor
+from shared.bus import bus_args, open_session
+from shared.keys import Keys
+from shared.messages import SCHEMA_VERSION, HumanFrame, JointCommand, RobotState, ServiceStatus
+
+log = logging.getLogger("mimic.soak")
+PIPELINE = ("retarget", "solver", "sim")
+
+
+def free_port() -> int:
+    """A free TCP port on loopback."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of ``pid`` [MB], or None when it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+# --------------------------------------------------------------------------- processes
+
+
+class LocalStack:
+    """The compose services as local processes on one loopback router, each killable alone.
+
+    Args:
+        session: bus session name.
+        endpoint: router endpoint, e.g. ``tcp/127.0.0.1:7447``.
+        env: variables for the compose interpolation (e.g. ``{"SOLVER": "wqp"}``).
+        status_period: ServiceStatus period of every service [s].
+    """
+
+    def __init__(self, session: str, endpoint: str, env: dict[str, str] | None = None, status_period: float = 0.5):
+        self.session = session
+        self.endpoint = endpoint
+        self.status_period = status_period
+        self.spec = load_stack(env={"MIMIC_SESSION": session, **(env or {})})
+        self.log = io.StringIO()  # every child's prefixed output, for failure messages
+        self.sup = Supervisor(out=self.log)
+        self.argv: dict[str, list[str]] = {}
+        self.env: dict[str, dict[str, str]] = {}
+
+    def command(self, name: str, extra: list[str] | None = None) -> tuple[list[str], dict[str, str]]:
+        """argv and environment of compose service ``name`` on this router and session."""
+        spec = self.spec[name]
+        argv = [sys.executable, "-m", "services.cli", *spec.command[1:], *(extra or [])]
+        if name != "zenoh":
+            argv += ["--status-period", str(self.status_period)]
+        env = local_environment(spec, self.endpoint, self.session)
+        return argv, env
+
+    def start(
+        self, name: str, extra: list[str] | None = None, argv: list[str] | None = None, env: dict | None = None
+    ) -> float:
+        """Start a service; again with no arguments: the same command. Returns the monotonic start time [s].
+
+        ``name`` is a compose service unless ``argv`` (a full command line) is given.
+        """
+        if argv is None:
+            if name in self.argv and extra is None:
+                argv, env = self.argv[name], self.env[name]
+            else:
+                argv, env = self.command(name, extra)
+        env = env if env is not None else {"MIMIC_SESSION": self.session, "MIMIC_CONNECT": self.endpoint}
+        self.argv[name], self.env[name] = argv, env
+        t = time.monotonic()
+        self.sup.start(name, argv, env)
+        return t
+
+    def start_all(self, names: list[str], extra: dict[str, list[str]] | None = None) -> None:
+        """Router first (waits until it accepts connections), then the named services."""
+        self.start("zenoh")
+        host, port = self.endpoint.split("/", 1)[1].rsplit(":", 1)
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                socket.create_connection((host, int(port)), timeout=0.5).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"router not listening on {self.endpoint}:\n{self.output()}") from None
+                time.sleep(0.1)
+        for n in names:
+            self.start(n, (extra or {}).get(n))
+
+    def pid(self, name: str) -> int | None:
+        c = self.sup.children.get(name)
+        return c.proc.pid if c is not None and c.proc is not None else None
+
+    def pids(self) -> dict[str, int]:
+        return {n: p for n in self.sup.children if (p := self.pid(n)) is not None}
+
+    def kill9(self, name: str) -> int:
+        """SIGKILL the service (no clean-up runs in it). Returns its pid."""
+        child = self.sup.children[name]
+        pid = child.proc.pid
+        os.kill(pid, signal.SIGKILL)
+        child.proc.wait(5)
+        child.proc = None
+        return pid
+
+    def running(self, name: str) -> bool:
+        return self.sup.alive(name)
+
+    def output(self, tail: int = 6000) -> str:
+        return self.log.getvalue()[-tail:]
+
+    def close(self) -> None:
+        order = [n for n in reversed(self.sup.children) if n != "zenoh"] + ["zenoh"]
+        for n in order:
+            if n in self.sup.children:
+                self.sup.stop(n, timeout=5.0)
+
+    def __enter__(self) -> LocalStack:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- observation
+
+
+@dataclass
+class StateSample:
+    """One received RobotState (arrays copied)."""
+
+    t: float  # monotonic arrival [s]
+    t_ns: int  # wall-clock arrival [ns]
+    seq: int
+    t0: int
+    q: np.ndarray
+    holding: bool
+    solver_id: str
+    sim_time: float
+
+
+@dataclass
+class CommandSample:
+    t: float
+    seq: int
+    solver_id: str
+    q: np.ndarray
+    qd: np.ndarray
+    status: str
+    reason: str
+
+
+@dataclass
+class Observer:
+    """A bus session that records what the stack publishes: states, commands, status, liveliness."""
+
+    endpoint: str
+    session: str
+    keep_commands: bool = True
+    states: list[StateSample] = field(default_factory=list)
+    commands: list[CommandSample] = field(default_factory=list)
+    status: dict[str, ServiceStatus] = field(default_factory=dict)
+    status_times: dict[str, list[float]] = field(default_factory=dict)
+    alive_events: list[tuple[float, str, str]] = field(default_factory=list)  # (t, "PUT"/"DELETE", "svc/inst")
+    first_state_ns: dict[int, int] = field(default_factory=dict)  # seq -> first arrival wall clock [ns]
+
+    def __post_init__(self) -> None:
+        self.keys = Keys(self.session)
+        self.lock = threading.Lock()
+        self.alive: set[str] = set()
+        self.z = open_session(bus_args(connect=[self.endpoint], session=self.session))
+        self._subs = [
+            self.z.declare_subscriber(self.keys.sim_state, self._on_state),
+            self.z.declare_subscriber(self.keys.all_status, self._on_status),
+            self.z.liveliness().declare_subscriber(self.keys.all_alive, self._on_alive, history=True),
+        ]
+        if self.keep_commands:
+            self._subs.append(self.z.declare_subscriber(self.keys.all_commands, self._on_command))
+
+    def _on_state(self, s: zenoh.Sample) -> None:
+        now_ns = time.time_ns()
+        m = RobotState.decode(s.payload.to_bytes())
+        smp = StateSample(time.monotonic(), now_ns, m.hdr.seq, m.hdr.t0, m.q, m.holding, m.solver_id, m.sim_time)
+        with self.lock:
+            self.states.append(smp)
+            self.first_state_ns.setdefault(m.hdr.seq, now_ns)
+
+    def _on_command(self, s: zenoh.Sample) -> None:
+        m = JointCommand.decode(s.payload.to_bytes())
+        with self.lock:
+            self.commands.append(CommandSample(time.monotonic(), m.hdr.seq, m.solver_id, m.q, m.qd, m.status, m.reason))
+
+    def _on_status(self, s: zenoh.Sample) -> None:
+        st = ServiceStatus.decode(s.payload.to_bytes())
+        name = f"{st.service}/{st.instance}"
+        with self.lock:
+            self.status[name] = st
+            self.status_times.setdefault(name, []).append(time.monotonic())
+
+    def _on_alive(self, s: zenoh.Sample) -> None:
+        parsed = Keys.parse_alive(str(s.key_expr))
+        if parsed is None:
+            return
+        name = "/".join(parsed)
+        kind = "DELETE" if s.kind == zenoh.SampleKind.DELETE else "PUT"
+        with self.lock:
+            self.alive_events.append((time.monotonic(), kind, name))
+            (self.alive.discard if kind == "DELETE" else self.alive.add)(name)
+
+    def wait_alive(self, names: list[str], timeout: float = 60.0, stack: LocalStack | None = None) -> None:
+        """Block until every ``service/instance`` in ``names`` holds a liveliness token."""
+        deadline = time.monotonic() + timeout
+        while not set(names) <= self.alive:
+            if time.monotonic() > deadline:
+                extra = f"\n{stack.output()}" if stack is not None else ""
+                raise TimeoutError(f"not alive after {timeout} s: {sorted(set(names) - self.alive)}{extra}")
+            time.sleep(0.05)
+
+    def wait_until(self, pred, timeout: float, what: str) -> float:
+        """Poll ``pred()`` until true; returns the monotonic time it became true."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self.lock:
+                ok = pred()
+            if ok:
+                return time.monotonic()
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{what}: not within {timeout} s")
+            time.sleep(0.01)
+
+    def states_since(self, t: float) -> list[StateSample]:
+        with self.lock:
+            return [s for s in self.states if s.t >= t]
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # the session may already be closing
+                pass
+        self.z.close()
+
+
+# --------------------------------------------------------------------------- input
+
+
+class FramePublisher:
+    """Publishes the demo motion as HumanFrames at a fixed rate from a thread.
+
+    The msgpack body of each clip frame is built once; per frame only the header
+    (seq, stamp, t0) changes, so 10 kHz is reachable from Python.
+
+    Args:
+        z: an open zenoh session. keys: its session's keys. rate: frames per second [Hz].
+    """
+
+    def __init__(self, z: zenoh.Session, keys: Keys, rate: float):
+        import msgpack
+
+        from services.ingest.clip import load_clip
+        from services.ingest.demo_motion import generate_demo_clips
+
+        self._packb = msgpack.packb
+        clip = load_clip(generate_demo_clips(tempfile.mkdtemp(prefix="mimic-soak-"))[0])
+        self.fps = clip.fps
+        self.bodies = []
+        for i in range(clip.n_frames):
+            d = {"v": SCHEMA_VERSION, "t": HumanFrame.TYPE}
+            d.update(clip.frame(i, seq=0).body())
+            self.bodies.append(d)
+        self.rate = rate
+        self.pub = z.declare_publisher(keys.mocap_frame, express=True)
+        self.sent = 0
+        self.late = 0
+        self.t0_ns: dict[int, int] = {}
+        self.t_start = 0.0
+        self.t_end = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def publish_one(self, k: int) -> None:
+        """Publish frame ``k`` (seq k, clip time k / rate) now."""
+        d = self.bodies[int(k / self.rate * self.fps) % len(self.bodies)]
+        t0 = time.time_ns()
+        d["hdr"] = [k, k / self.rate, t0]
+        self.pub.put(self._packb(d, use_bin_type=True))
+        self.t0_ns[k] = t0
+        self.sent = k + 1
+
+    def run(self, duration: float) -> None:
+        """Publish for ``duration`` [s] (blocking), paced on monotonic deadlines."""
+        period = 1.0 / self.rate
+        self.t_start = start = time.monotonic()
+        n = int(duration * self.rate)
+        k = 0
+        while k < n and not self._stop.is_set():
+            target = start + k * period
+            now = time.monotonic()
+            if now < target:
+                if target - now > 0.0015:
+                    time.sleep(target - now - 0.001)
+                continue
+            if now - target > 5 * period:
+                self.late += 1
+            self.publish_one(k)
+            k += 1
+        self.t_end = time.monotonic()
+
+    def start(self, duration: float) -> None:
+        self._thread = threading.Thread(target=self.run, args=(duration,), daemon=True)
+        self._thread.start()
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.join(5)
+
+    @property
+    def achieved_rate(self) -> float:
+        return self.sent / max(self.t_end - self.t_start, 1e-9)
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def latency_windows(t0_ns: dict[int, int], arrival_ns: dict[int, int], t_start_ns: int, window: float = 1.0):
+    """End-to-end latency [ms] of the frames sent in each ``window`` [s] of the run.
+
+    Returns:
+        list of {"t_s", "sent", "reached", "p50", "p99", "max"} per window.
+    """
+    by_win: dict[int, list[float]] = {}
+    sent: dict[int, int] = {}
+    for seq, t0 in t0_ns.items():
+        w = int((t0 - t_start_ns) / 1e9 / window)
+        sent[w] = sent.get(w, 0) + 1
+        if seq in arrival_ns:
+            by_win.setdefault(w, []).append((arrival_ns[seq] - t0) / 1e6)
+    out = []
+    for w in sorted(sent):
+        v = np.asarray(by_win.get(w, []))
+        row = {"t_s": w * window, "sent": sent[w], "reached": int(v.size)}
+        if v.size:
+            row.update(p50=float(np.percentile(v, 50)), p99=float(np.percentile(v, 99)), max=float(v.max()))
+        out.append(row)
+    return out
+
+
+def rss_summary(samples: list[tuple[float, float]], skip_s: float = 30.0) -> dict:
+    """start/end/max RSS [MB] and the slope [MB/min] (least squares after ``skip_s`` of warm-up)."""
+    if not samples:
+        return {}
+    t = np.array([s[0] for s in samples])
+    m = np.array([s[1] for s in samples])
+    use = t >= t[0] + skip_s
+    if use.sum() < 3:
+        use = np.ones_like(t, dtype=bool)
+    slope = float(np.polyfit(t[use] / 60.0, m[use], 1)[0]) if use.sum() >= 2 else 0.0
+    return {
+        "start_mb": float(m[0]),
+        "end_mb": float(m[-1]),
+        "max_mb": float(m.max()),
+        "slope_mb_per_min": slope,
+        "fit_from_s": float(t[use][0] - t[0]),
+        "samples": len(m),
+    }
+
+
+def dropped_counts(status: dict[str, ServiceStatus]) -> dict[str, dict[str, int]]:
+    """Every ``dropped.*`` count of every service's last status."""
+    return {
+        name: {k: v for k, v in st.counts.items() if k.startswith("dropped")} for name, st in sorted(status.items())
+    }
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rate", type=float, default=1000.0, help="mocap frames per second [Hz]")
+    p.add_argument("--duration", type=float, default=600.0, help="seconds of publishing")
+    p.add_argument("--sample-period", type=float, default=5.0, help="RSS sampling period [s]")
+    p.add_argument("--warmup", type=float, default=30.0, help="seconds excluded from the RSS slope fit")
+    p.add_argument("--logger", action="store_true", help="run the Rerun logger too (writes an .rrd in a temp dir)")
+    p.add_argument("--algo", default=None, help="solver algorithm (default: the compose default)")
+    p.add_argument("--json", default=None, help="write the report here too")
+
+
+def run(args: argparse.Namespace) -> dict:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = f"soak{endpoint.rsplit(':', 1)[1]}"
+    env = {"SOLVER": args.algo} if args.algo else {}
+    names = [*PIPELINE, *(["logger"] if args.logger else [])]
+    tmp = tempfile.mkdtemp(prefix="mimic-soak-")
+    extra = {"logger": ["--rrd", str(Path(tmp) / "soak.rrd")]}
+    rss: dict[str, list[tuple[float, float]]] = {}
+    with LocalStack(session, endpoint, env=env, status_period=1.0) as stack:
+        stack.start_all(names, extra)
+        obs = Observer(endpoint, session, keep_commands=False)
+        try:
+            obs.wait_alive([f"{n}/main" for n in names], timeout=120, stack=stack)
+            time.sleep(0.5)
+            pub = FramePublisher(obs.z, obs.keys, args.rate)
+            t_start_ns = time.time_ns()
+            t_start = time.monotonic()
+            pub.start(args.duration)
+            next_sample = t_start
+            while True:
+                now = time.monotonic()
+                if now >= next_sample:
+                    for n, pid in stack.pids().items():
+                        v = rss_mb(pid)
+                        if v is not None:
+                            rss.setdefault(n, []).append((now - t_start, v))
+                    next_sample += args.sample_period
+                    with obs.lock:
+                        obs.states.clear()  # only first arrivals are needed for the figures
+                if now - t_start > args.duration:
+                    break
+                dead = [n for n in names if not stack.running(n)]
+                if dead:
+                    raise RuntimeError(f"services died during the soak: {dead}\n{stack.output()}")
+                time.sleep(min(0.2, max(0.0, next_sample - now)))
+            pub.join(30)
+            time.sleep(1.0 + 2 * stack.status_period)
+            with obs.lock:
+                arrival = dict(obs.first_state_ns)
+                status = dict(obs.status)
+        finally:
+            obs.close()
+    windows = latency_windows(pub.t0_ns, arrival, t_start_ns)
+    reached = sum(w["reached"] for w in windows)
+    full = [w for w in windows if "p99" in w]
+    return {
+        "rate_hz": args.rate,
+        "achieved_rate_hz": pub.achieved_rate,
+        "duration_s": args.duration,
+        "publisher_late_frames": pub.late,
+        "sent": pub.sent,
+        "reached_robot_state": reached,
+        "latency_ms_first_s": full[0] if full else None,
+        "latency_ms_last_s": full[-1] if full else None,
+        "latency_ms_p99_max_over_windows": max((w["p99"] for w in full), default=None),
+        "latency_windows": windows,
+        "dropped": dropped_counts(status),
+        "rss": {n: rss_summary(v, args.warmup) for n, v in sorted(rss.items())},
+    }
+
+
+def main(args: argparse.Namespace) -> int:
+    res = run(args)
+    text = json.dumps(res, indent=2)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(text)
+    sys.stdout.write(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    add_arguments(parser)
+    sys.exit(main(parser.parse_args()))

@@ -1,0 +1,127 @@
+"""Elbow targets the robot can reach together with its wrist target ("swivel" placement).
+
+Eqs. (1)-(3) map the wrist and the elbow independently per axis, so the distance
+between the two targets follows the operator's forearm scaled by the workspace
+ratios (0.10-0.15 m on the recorded clips), not the robot's (0.18 m on the G1): no
+configuration meets both, and any solver that holds the wrist misses the elbow by
+the length mismatch (about 6 cm), whatever its priorities.
+
+The swivel placement keeps what the elbow target is for, the arm's swivel (where
+the elbow points around the shoulder-wrist axis), and takes the lengths from the
+robot: the elbow target is the point at the robot's upper-arm length from its
+shoulder centre and at its forearm length from the wrist target, on the side the
+operator's elbow points to. Shoulder centre and lengths are measured once on the
+robot model (the shoulder joints of the G1 do not intersect exactly: the centre is
+the least-squares sphere centre of the elbow over random arm configurations,
+residual about 0.5 cm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from shared.robot.pinocchio_model import RobotModel
+
+#: Swivel direction used when the operator's arm is straight [m]: blended in with this weight,
+#: so the direction stays continuous when the elbow crosses the shoulder-wrist line.
+_STRAIGHT_BLEND = 0.01
+#: Kept inside the reach shell [m], so the elbow target stays clear of the elbow joint's stops.
+REACH_MARGIN = 0.005
+
+
+@dataclass(frozen=True)
+class ArmGeometry:
+    """One robot arm: shoulder centre c (3,) [m] (base frame, waist at rest), lengths [m].
+
+    Attributes:
+        centre: shoulder centre (3,) [m].
+        upper: shoulder centre -> elbow frame distance [m].
+        fore: elbow frame -> wrist frame distance with the wrist joints at zero [m].
+        default_swivel: (3,) unit swivel direction of the rest pose.
+        reach: (min, max) shoulder centre -> wrist distance over the elbow joint's range, wrist
+            joints at zero, with ``REACH_MARGIN`` inside [m].
+    """
+
+    centre: np.ndarray
+    upper: float
+    fore: float
+    default_swivel: np.ndarray
+    reach: tuple[float, float] = (0.0, np.inf)
+
+    @classmethod
+    def measure(cls, robot: RobotModel, side: str, samples: int = 400, seed: int = 0) -> ArmGeometry:
+        """Measure one arm ('left' or 'right') on the robot model (arms at random, waist at rest)."""
+        rng = np.random.default_rng(seed)
+        elbow, wrist = f"{side}_elbow", f"{side}_wrist"
+        qs = robot.random_configurations(samples, rng)
+        if robot.nq > 14:  # keep any waist joints at rest: the targets are for the waist at rest
+            waist = [i for i, n in enumerate(robot.joint_names) if "waist" in n]
+            qs[:, waist] = robot.q_rest[waist]
+        E = np.array([robot.frame_poses(q, names=(elbow,))[elbow][0] for q in qs])
+        # Sphere fit |E - c|^2 = r^2  <=>  2 E.c + (r^2 - |c|^2) = |E|^2 (linear least squares).
+        A = np.c_[2.0 * E, np.ones(len(E))]
+        sol = np.linalg.lstsq(A, (E**2).sum(axis=1), rcond=None)[0]
+        c = sol[:3]
+        upper = float(np.sqrt(sol[3] + c @ c))
+        q0 = robot.q_rest.copy()
+        for i, n in enumerate(robot.joint_names):
+            if f"{side}_wrist" in n:
+                q0[i] = 0.0
+        poses = robot.frame_poses(q0, names=(elbow, wrist))
+        fore = float(np.linalg.norm(poses[wrist][0] - poses[elbow][0]))
+        rest = robot.frame_poses(robot.q_rest, names=(elbow, wrist))
+        n0 = _perp(rest[elbow][0] - c, rest[wrist][0] - c)
+        if np.linalg.norm(n0) < 1e-6:
+            n0 = np.array([-1.0, 0.0, 0.0])
+        # The elbow joint's limits bound how far the wrist can be from the shoulder (G1: it folds
+        # to about 140 deg only, so a wrist target at the shoulder is out of reach).
+        k = robot.joint_names.index(f"{side}_elbow_joint")
+        dist = []
+        for e in np.linspace(robot.lower[k], robot.upper[k], 201):
+            q0[k] = e
+            dist.append(np.linalg.norm(robot.frame_poses(q0, names=(wrist,))[wrist][0] - c))
+        reach = (min(dist) + REACH_MARGIN, max(dist) - REACH_MARGIN)
+        return cls(c, upper, fore, n0 / np.linalg.norm(n0), reach)
+
+    def reachable(self, wrist: np.ndarray) -> np.ndarray:
+        """The wrist target (3,) [m] moved radially into the reach shell around the shoulder centre."""
+        a = np.asarray(wrist, dtype=float) - self.centre
+        d = float(np.linalg.norm(a))
+        if d < 1e-9:
+            return self.centre + self.reach[0] * self.default_swivel
+        return self.centre + a * (min(max(d, self.reach[0]), self.reach[1]) / d)
+
+    def place(self, wrist: np.ndarray, swivel: np.ndarray) -> np.ndarray:
+        """Elbow target (3,) [m] for a wrist target (3,) [m] and a swivel direction (3,).
+
+        ``swivel`` is the operator's elbow offset from their shoulder-wrist line (any length;
+        only its direction perpendicular to the robot's shoulder-wrist line is used).
+        """
+        a = np.asarray(wrist, dtype=float) - self.centre
+        d = float(np.linalg.norm(a))
+        if d < 1e-9:
+            return self.centre + self.upper * self.default_swivel
+        u = a / d
+        lo, hi = abs(self.upper - self.fore) + 1e-4, self.upper + self.fore - 1e-6
+        d = min(max(d, lo), hi)  # an out-of-reach wrist: elbow on the stretched (or folded) arm
+        x = (self.upper**2 - self.fore**2 + d**2) / (2.0 * d)
+        r = np.sqrt(max(self.upper**2 - x**2, 0.0))
+        n = _perp(np.asarray(swivel, dtype=float) + _STRAIGHT_BLEND * self.default_swivel, a)
+        nn = np.linalg.norm(n)
+        if nn < 1e-9:
+            n = _perp(self.default_swivel + np.array([0.0, 0.0, -1.0]), a)
+            nn = np.linalg.norm(n)
+        return self.centre + x * u + r * (n / max(nn, 1e-12))
+
+
+def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Component of v (3,) perpendicular to axis (3,)."""
+    u = axis / max(np.linalg.norm(axis), 1e-12)
+    return v - (v @ u) * u
+
+
+def human_swivel(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
+    """Operator elbow offset (3,) [m] from their shoulder-wrist line (pelvis frame)."""
+    return _perp(np.asarray(elbow, dtype=float) - shoulder, np.asarray(wrist, dtype=float) - shoulder)

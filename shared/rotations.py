@@ -1,0 +1,34 @@
+"""Single-rotation conversions shared by every service (quaternions are w, x, y, z).
+
+MuJoCo's C helpers are used rather than ``pin.Quaternion``: constructing Pinocchio
+quaternions from matrices leaked memory in the long-running retarget service (soak test,
+8.5 MB/min at 1 kHz), and these run once per target per frame.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (4,) w, x, y, z with w >= 0 from a rotation matrix (3, 3)."""
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
+    return -q if q[0] < 0.0 else q
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of a quaternion (4,) w, x, y, z (normalised here)."""
+    qn = np.asarray(q, dtype=float).copy()
+    norm = float(np.linalg.norm(qn))
+    if not np.isfinite(norm) or norm == 0.0:
+        raise ValueError(f"quaternion {q!r} has no rotation (norm {norm})")
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, qn / norm)
+    return R.reshape(3, 3)
+
+
+def quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (4,) x, y, z, w (Rerun's order) of a rotation matrix (3, 3)."""
+    return np.roll(matrix_to_quat(R), -1)

@@ -1,0 +1,277 @@
+"""Fault injection on the real stack: crash/restart, solver swap, input bursts.
+
+Each scenario runs real processes on loopback (router, retarget, solver, sim, the
+demo clip looping through ``mimic publish``), injects one fault and returns the
+measured figures as a dict; the tests in this folder assert on them. Run as a
+script to print the figures as JSON::
+
+    .venv/bin/python tests/reliability/faults.py crash      # kill -9 + restart each service
+    .venv/bin/python tests/reliability/faults.py swap       # solver swap mid-stream
+    .venv/bin/python tests/reliability/faults.py burst --rate 10000 --duration 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import itertools
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+if str(REPO) not in sys.path:  # as a script
+    sys.path.insert(0, str(REPO))
+
+from services.evaluation.soak import (  # noqa: E402
+    FramePublisher,
+    LocalStack,
+    Observer,
+    StateSample,
+    dropped_counts,
+    free_port,
+    latency_windows,
+)
+from shared.bus import query  # noqa: E402
+from shared.robot.pinocchio_model import build_robot_model  # noqa: E402
+
+PIPELINE = ("retarget", "solver", "sim")
+STATUS_PERIOD = 0.2  # [s] every service's status period in these scenarios
+#: Measured q may lead the rate-limited servo target a little (PD tracking overshoot) [rad/s].
+VEL_TOL = 0.5
+
+
+def vmax_by_joint() -> dict[str, float]:
+    r = build_robot_model()
+    return dict(zip(r.joint_names, r.vmax.tolist(), strict=True))
+
+
+@contextlib.contextmanager
+def running_stack(names=PIPELINE, extra: dict[str, list[str]] | None = None, clip_loop: bool = True):
+    """Router + ``names`` (+ the demo clip looping through ``mimic publish``), frames flowing.
+
+    Yields:
+        (stack, observer), after the first RobotState carrying a mocap frame arrived.
+    """
+    from services.ingest.demo_motion import generate_demo_clips
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = f"rel{endpoint.rsplit(':', 1)[1]}"
+    with LocalStack(session, endpoint, status_period=STATUS_PERIOD) as stack:
+        stack.start_all(list(names), extra)
+        obs = Observer(endpoint, session)
+        try:
+            obs.wait_alive([f"{n}/main" for n in names], timeout=120, stack=stack)
+            if clip_loop:
+                # The ellipse: both hands move without touching (box_lift's hand contacts make the
+                # simulated joints bounce past vmax, which would blur the jump checks).
+                clip = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-rel-"))[1]
+                stack.start(
+                    "publish",
+                    argv=[
+                        sys.executable, "-m", "services.cli", "publish", str(clip), "--loop",
+                        "--connect", endpoint, "--session", session, "--status-period", str(STATUS_PERIOD),
+                    ],
+                )  # fmt: skip
+                obs.wait_until(
+                    lambda: any(s.seq > 0 and not s.holding for s in obs.states[-50:]), 60, "frames reaching the sim"
+                )
+            yield stack, obs
+        finally:
+            obs.close()
+
+
+def max_state_velocity(states: list[StateSample], vmax: np.ndarray) -> tuple[float, int]:
+    """Largest |dq| / d(sim_time) - vmax over consecutive states of one sim [rad/s], and the pair count.
+
+    A new sim process (sim_time starting again) begins a new sequence.
+    """
+    worst, pairs = -np.inf, 0
+    for a, b in itertools.pairwise(states):
+        dt = b.sim_time - a.sim_time
+        if dt <= 0:  # a restarted sim, or a repeated publication
+            continue
+        pairs += 1
+        worst = max(worst, float(np.max(np.abs(b.q - a.q) / dt - vmax)))
+    return worst, pairs
+
+
+def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
+    """``kill -9`` one service, check the others and the watchdog, restart it, time the resume."""
+    others = [n for n in PIPELINE if n != victim]
+    with obs.lock:
+        last_seq = obs.states[-1].seq
+    pids_before = stack.pids()
+    t_kill_ns = time.time_ns()
+    t_kill = time.monotonic()
+    stack.kill9(victim)
+    name = f"{victim}/main"
+    t_gone = obs.wait_until(
+        lambda: any(t >= t_kill and k == "DELETE" and n == name for t, k, n in obs.alive_events), 5, f"{name} DELETE"
+    )
+    res: dict = {"victim": victim, "liveliness_delete_s": t_gone - t_kill}
+    # Watch the stack without the victim for a while.
+    time.sleep(0.8)
+    t_watch = time.monotonic()
+    res["others_running"] = {n: stack.running(n) and stack.pid(n) == pids_before[n] for n in others}
+    with obs.lock:
+        res["others_status_after_kill"] = {
+            n: sum(1 for t in obs.status_times.get(f"{n}/main", []) if t > t_kill + 0.3) for n in others
+        }
+        res["others_alive"] = {n: f"{n}/main" in obs.alive for n in others}
+        after = [s for s in obs.states if s.t >= t_kill]
+    if victim == "solver":
+        first_hold = next((s for s in after if s.holding), None)
+        res["hold_after_s"] = None if first_hold is None else first_hold.t - t_kill
+        held = [s for s in after if s.holding]
+        res["held_states"] = len(held)
+        res["hold_q_drift_rad"] = float(max(np.max(np.abs(s.q - held[0].q)) for s in held)) if held else None
+        # Once the servo settled on the held target (0.1 s), the joints stay put.
+        settled = [s for s in held if s.sim_time >= held[0].sim_time + 0.1]
+        res["hold_q_drift_settled_rad"] = (
+            float(max(np.max(np.abs(s.q - settled[0].q)) for s in settled)) if settled else None
+        )
+    if victim != "sim":
+        res["states_during_outage"] = sum(1 for s in after if s.t < t_watch)
+    res["new_frames_during_outage"] = sum(1 for s in after if s.t0 > t_kill_ns)
+
+    # Restart: the same command as a new process.
+    log_mark = len(stack.log.getvalue())
+    t_restart = stack.start(victim)
+    t_alive = obs.wait_until(
+        lambda: any(t >= t_restart and k == "PUT" and n == name for t, k, n in obs.alive_events), 60, f"{name} back"
+    )
+    t_resume = obs.wait_until(
+        lambda: any(s.t >= t_alive and s.t0 > t_kill_ns and not s.holding for s in obs.states[-200:]),
+        20,
+        f"stream resumed after restarting {victim}",
+    )
+    res["startup_s"] = t_alive - t_restart  # process start until its liveliness token
+    res["resume_after_alive_s"] = t_resume - t_alive  # token until a new frame reached the robot state
+    res["resume_after_restart_s"] = t_resume - t_restart
+    time.sleep(0.5)
+    with obs.lock:
+        res["seq_advanced"] = obs.states[-1].seq > last_seq
+        states = [s for s in obs.states if s.t >= t_kill - 0.5]
+        if victim == "solver":
+            first = next((c for c in obs.commands if c.t >= t_alive and c.solver_id == "main"), None)
+            before = [s for s in obs.states if s.t <= (first.t if first else 0)]
+            ref = before[-1].q if before else None
+            res["new_solver_first_cmd_vs_state_rad"] = (
+                None if first is None or ref is None else float(np.max(np.abs(first.q - ref)))
+            )
+            new = [c.q for c in obs.commands if c.t >= t_alive and c.solver_id == "main"]
+            steps = [float(np.max(np.abs(b - a))) for a, b in itertools.pairwise(new)]
+            res["new_solver_max_cmd_step_rad"] = max(steps, default=None)
+            new_log = stack.log.getvalue()[log_mark:]
+            res["new_solver_started_from_rest"] = "starting from the rest pose" in new_log
+            res["new_solver_reanchored"] = "re-initialised from the first robot state" in new_log
+    vmax = np.full(states[0].q.shape, max(vmax_by_joint().values())) if states else np.zeros(0)
+    excess, pairs = max_state_velocity(states, vmax)
+    res["state_velocity_excess_rad_s"] = excess
+    res["state_pairs"] = pairs
+    return res
+
+
+def swap_solver(stack: LocalStack, obs: Observer, algo: str = "wqp") -> dict:
+    """Second solver ``b`` with another algorithm, switch the sim to it, stop the first one."""
+    t_b = stack.start(
+        "solver-b",
+        argv=[
+            sys.executable, "-m", "services.cli", "solve", "--algo", algo, "--id", "b",
+            "--connect", stack.endpoint, "--session", stack.session, "--status-period", str(STATUS_PERIOD),
+        ],
+    )  # fmt: skip
+    obs.wait_alive(["solver/b"], timeout=60, stack=stack)
+    obs.wait_until(lambda: any(c.solver_id == "b" and c.t > t_b for c in obs.commands[-400:]), 10, "commands from b")
+    time.sleep(0.5)
+    t_switch = time.monotonic()
+    reply = query(obs.z, obs.keys.sim_follow, b"b")
+    t_reply = time.monotonic()
+    obs.wait_until(lambda: any(s.t > t_switch and s.solver_id == "b" for s in obs.states[-50:]), 5, "sim follows b")
+    time.sleep(0.5)
+    t_stop = time.monotonic()
+    code = stack.sup.stop("solver")  # SIGTERM: the first one goes away cleanly
+    time.sleep(1.5)
+    t_end = time.monotonic()
+    with obs.lock:
+        states = [s for s in obs.states if t_switch - 1.0 <= s.t <= t_end]
+        after_stop = [s for s in obs.states if s.t > t_stop]
+    seqs = [s.seq for s in states]
+    # Largest wall-clock gap between states that carry a new mocap frame (the stream's "drop").
+    fresh_t = [s.t for i, s in enumerate(states) if i == 0 or s.seq != seqs[i - 1]]
+    gaps = np.diff(fresh_t) if len(fresh_t) > 1 else np.array([np.inf])
+    sim_dt = np.diff([s.sim_time for s in states])
+    vmax = np.full(states[0].q.shape, max(vmax_by_joint().values()))
+    excess, pairs = max_state_velocity(states, vmax)
+    return {
+        "algo_b": algo,
+        "follow_reply": reply.decode(errors="replace") if isinstance(reply, bytes) else str(reply),
+        "query_s": t_reply - t_switch,
+        "first_solver_exit_code": code,
+        "states": len(states),
+        "holding_states": sum(s.holding for s in states),
+        "max_gap_new_frame_s": float(np.max(gaps)),
+        "max_gap_state_s": float(np.max(np.diff([s.t for s in states]))),
+        "max_gap_sim_time_s": float(np.max(sim_dt)) if sim_dt.size else None,
+        "state_velocity_excess_rad_s": excess,
+        "state_pairs": pairs,
+        "followed_after_stop": sorted({s.solver_id for s in after_stop}),
+        # Where things happened, relative to the follow switch [s] (the stop is at stop_at_s).
+        "stop_at_s": t_stop - t_switch,
+        "holding_at_s": [round(s.t - t_switch, 3) for s in states if s.holding][:20],
+        "max_gap_state_at_s": float(states[int(np.argmax(np.diff([s.t for s in states])))].t - t_switch),
+        "new_frames_after_stop": len({s.seq for s in after_stop}),
+    }
+
+
+def burst(stack: LocalStack, obs: Observer, rate: float, duration: float) -> dict:
+    """Publish HumanFrames at ``rate`` Hz for ``duration`` s from the observer; latency per second."""
+    pub = FramePublisher(obs.z, obs.keys, rate)
+    t_start_ns = time.time_ns()
+    pub.run(duration)
+    time.sleep(1.0 + 2 * STATUS_PERIOD)
+    with obs.lock:
+        arrival = dict(obs.first_state_ns)
+        status = dict(obs.status)
+    windows = latency_windows(pub.t0_ns, arrival, t_start_ns)
+    full = [w for w in windows if "p99" in w and w["sent"] > rate / 2]  # whole seconds that reached the robot
+    return {
+        "rate_hz": rate,
+        "achieved_rate_hz": pub.achieved_rate,
+        "sent": pub.sent,
+        "reached": sum(w["reached"] for w in windows),
+        "windows": windows,
+        "first_s": full[0] if full else None,
+        "last_s": full[-1] if full else None,
+        "dropped": dropped_counts(status),
+        "retarget_counts": dict(status["retarget/main"].counts) if "retarget/main" in status else {},
+        "alive": {n: stack.running(n) for n in PIPELINE},
+    }
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    p.add_argument("scenario", choices=("crash", "swap", "burst"))
+    p.add_argument("--rate", type=float, default=10000.0, help="burst: frames per second [Hz]")
+    p.add_argument("--duration", type=float, default=10.0, help="burst: seconds")
+    a = p.parse_args()
+    if a.scenario == "burst":
+        with running_stack(clip_loop=False) as (stack, obs):
+            out = burst(stack, obs, a.rate, a.duration)
+    elif a.scenario == "swap":
+        with running_stack() as (stack, obs):
+            out = swap_solver(stack, obs)
+    else:
+        with running_stack() as (stack, obs):
+            out = {v: crash_restart(stack, obs, v) for v in PIPELINE}
+    sys.stdout.write(json.dumps(out, indent=2, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""A solver that starts before the robot state reaches it anchors on the first state that comes.
+
+Under load the ``--startup-wait`` (0.5 s) can pass without a RobotState; the solver
+then starts from the rest pose. Without re-anchoring, its commands would pull a
+robot standing elsewhere towards the rest pose (2.2 rad away was seen in a
+crash/restart run). Here a real ``mimic solve`` process starts with no sim; then
+RobotStates of a pose 0.3 rad from rest arrive: its commands must switch to that
+pose and stay there while no targets come.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services.evaluation.soak import Observer
+from shared.messages import Header, RobotState
+from shared.robot.pinocchio_model import build_robot_model
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+
+def test_solver_started_without_state_anchors_on_the_first_state(zenoh_endpoint):
+    repo = Path(__file__).resolve().parents[2]
+    session = f"anchor{zenoh_endpoint.rsplit(':', 1)[1]}"
+    robot = build_robot_model()
+    q_robot = robot.clip(robot.q_rest + 0.3)
+    common = ["--connect", zenoh_endpoint, "--session", session]
+    router = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "router", "--listen", zenoh_endpoint],
+        cwd=repo,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    solver = obs = None
+    try:
+        time.sleep(0.8)
+        solver = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "solve", "--id", "main", "--startup-wait", "0.2", *common],
+            cwd=repo,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        out: list[str] = []
+        threading.Thread(target=lambda: out.extend(solver.stdout), daemon=True).start()
+        obs = Observer(zenoh_endpoint, session)
+        obs.wait_alive(["solver/main"], timeout=60)
+        obs.wait_until(lambda: len(obs.commands) > 20, 30, "commands from rest")
+        with obs.lock:
+            from_rest = obs.commands[-1].q
+        assert np.max(np.abs(from_rest - robot.q_rest)) < 1e-6  # no state yet: the rest pose
+        pub = obs.z.declare_publisher(obs.keys.sim_state)
+        t_first = time.monotonic()
+        for k in range(30):  # 0.3 s of a robot standing still at q_robot
+            msg = RobotState(
+                Header(0, 0.0, 0), list(robot.joint_names), q_robot, np.zeros(robot.nq), {}, k * 0.01, "main", True
+            )
+            pub.put(msg.encode())
+            time.sleep(0.01)
+        time.sleep(0.2)
+        with obs.lock:
+            after = [c.q for c in obs.commands if c.t > t_first + 0.1]
+        assert after, "".join(out)
+        assert max(float(np.max(np.abs(q - q_robot))) for q in after) < 1e-6, "".join(out)
+        assert any("re-initialised from the first robot state" in ln for ln in out), "".join(out)
+    finally:
+        if obs is not None:
+            obs.close()
+        for p in (solver, router):
+            if p is not None and p.poll() is None:
+                p.terminate()
+                p.wait(10)
