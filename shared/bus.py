@@ -18,6 +18,7 @@ import json
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from collections import deque
@@ -257,6 +258,10 @@ class LatestSlot:
 # --------------------------------------------------------------------------- runner
 
 
+#: CPython thread switch interval for services [s] (default 5 ms).
+SWITCH_INTERVAL_S = 5e-4
+
+
 class ServiceRunner:
     """Lifecycle of one service process on the bus.
 
@@ -282,6 +287,11 @@ class ServiceRunner:
 
     # lifecycle
     def __enter__(self) -> ServiceRunner:
+        # Zenoh delivers samples on its own threads, which need the GIL for a moment each. With
+        # CPython's default 5 ms switch interval a busy worker thread (retarget, solver, sim) keeps
+        # them waiting up to 5 ms per sample, so under load samples back up inside Zenoh and the
+        # kernel where newest-wins cannot drop them. 0.5 ms keeps the hand-off latency small.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         if self._install_signals and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, self._on_signal)

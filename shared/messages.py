@@ -615,3 +615,16 @@ def peek_type(payload: bytes) -> str | None:
         return d.get("t") if isinstance(d, dict) else None
     except Exception:
         return None
+
+
+def peek_header(payload: bytes) -> Header | None:
+    """Header of any message without validating the rest (None if unreadable).
+
+    For observers (benchmarks, monitors) that only need ``seq`` and ``t0`` at high rate;
+    services decode fully.
+    """
+    try:
+        d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
+        return Header.from_wire(d["hdr"]) if isinstance(d, dict) and "hdr" in d else None
+    except Exception:
+        return None

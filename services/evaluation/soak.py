@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import logging
 import os
 import signal
@@ -45,6 +44,7 @@ from services.launcher.supervisor import Supervisor
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import SCHEMA_VERSION, HumanFrame, JointCommand, RobotState, ServiceStatus
+from shared.report import emit_json
 
 log = logging.getLogger("mimic.soak")
 PIPELINE = ("retarget", "solver", "sim")
@@ -499,11 +499,7 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(args: argparse.Namespace) -> int:
     res = run(args)
-    text = json.dumps(res, indent=2)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
-    sys.stdout.write(text + "\n")
+    emit_json(res, args.json)
     return 0
 
 

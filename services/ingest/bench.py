@@ -6,7 +6,6 @@ Run: ``python -m services.ingest.bench [--mocap-dir DIR] [--repeat N]``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import tempfile
@@ -15,6 +14,7 @@ from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
 from services.ingest.demo_motion import generate_demo_clips
+from shared.report import emit_json
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_MOCAP = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap"))
@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mocap-dir", type=Path, default=DEFAULT_MOCAP)
     p.add_argument("--repeat", type=int, default=3, help="loads per file (median time)")
     a = p.parse_args(argv)
-    print(json.dumps(run(a.mocap_dir, a.repeat), indent=2))
+    emit_json(run(a.mocap_dir, a.repeat))
     return 0
 
 

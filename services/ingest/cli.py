@@ -10,7 +10,6 @@ invalidations are counted with ``status.reject(reason)``, repairs in
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import selectors
 import socket
@@ -20,6 +19,7 @@ import time
 from services.ingest.live import LiveIngest
 from services.ingest.xsens import MvnDecoder
 from shared.bus import ServiceRunner, add_bus_args
+from shared.report import emit_json
 
 DEFAULT_HOST = "127.0.0.1"
 log = logging.getLogger("mimic.ingest")
@@ -118,5 +118,5 @@ def main(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    print(json.dumps(summary))
+    emit_json(summary, indent=None)
     return 0

@@ -12,7 +12,6 @@ same reader as real files.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -21,6 +20,7 @@ import numpy as np
 
 from services.ingest.bvh import BvhData, BvhJoint, write_bvh
 from services.ingest.rotations import matrix_to_euler
+from shared.report import emit_json
 
 log = logging.getLogger(__name__)
 
@@ -248,5 +248,5 @@ def main(args: argparse.Namespace) -> int:
                 "bones": clip.bones,
             }
         )
-    print(json.dumps({"demo_motion": out}, indent=2))
+    emit_json({"demo_motion": out})
     return 0

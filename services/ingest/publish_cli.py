@@ -9,7 +9,6 @@ across loops), ``hdr.t0`` = ``time.time_ns()`` at publish.
 from __future__ import annotations
 
 import argparse
-import json
 import threading
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 from services.ingest.clip import ClipError, load_clip
 from services.ingest.playback import Playback
 from shared.bus import ServiceRunner, add_bus_args
+from shared.report import emit_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -104,5 +104,5 @@ def main(args: argparse.Namespace) -> int:
 
         logging.getLogger("mimic.publish").error("%s", exc)
         return 2
-    print(json.dumps(summary))
+    emit_json(summary, indent=None)
     return 0

@@ -17,6 +17,28 @@ log = logging.getLogger("mimic.up")
 _PR_SET_PDEATHSIG = 1
 
 
+def stop_processes(
+    *procs: subprocess.Popen | None, sig: int = signal.SIGINT, timeout: float = 10.0
+) -> list[int | None]:
+    """Stop processes in the given order: ``sig``, then SIGKILL after ``timeout`` [s].
+
+    None entries and processes that already exited are skipped. Returns each exit code
+    (None for skipped ones; a killed process reports its negative signal number).
+    """
+    codes: list[int | None] = []
+    for proc in procs:
+        if proc is None or proc.poll() is not None:
+            codes.append(None if proc is None else proc.returncode)
+            continue
+        proc.send_signal(sig)
+        try:
+            codes.append(proc.wait(timeout))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            codes.append(proc.wait())
+    return codes
+
+
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child
     # If the launcher is SIGKILLed, the kernel still takes its children down: no orphans.
     try:

@@ -24,10 +24,12 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from services.launcher.supervisor import stop_processes
 from services.recorder.mcap_io import read_recording
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import HUMAN_BONES, Bone, Header, HumanFrame, Pose, ServiceStatus
+from shared.report import emit_json
 
 log = logging.getLogger("mimic.record-bench")
 
@@ -138,13 +140,7 @@ def run_bench(
         stdout, _ = recorder.communicate(timeout=60)
         final = json.loads(stdout.strip().splitlines()[-1]) if stdout.strip() else {}
     finally:
-        for proc in (recorder, router):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop_processes(recorder, router)
     recording = read_recording(out)
     seqs = []
     for rec in recording:
@@ -176,9 +172,5 @@ def main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out) if args.out else Path(tmp) / "bench.mcap"
         report = run_bench(args.rate, args.duration, out, args.port, args.session, args.rss_period)
-    text = json.dumps(report)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=1))
-    print(text)
+    emit_json(report, args.json, indent=1)
     return 0 if report["lost"] == 0 and report["duplicates"] == 0 else 1

@@ -9,7 +9,6 @@ writes the MCAP summary and prints the final counts as JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import threading
 import time
 from datetime import UTC, datetime
@@ -19,6 +18,7 @@ import zenoh
 from services.recorder.recorder import Recorder
 from shared.bus import ServiceRunner, add_bus_args
 from shared.keys import Keys
+from shared.report import emit_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -79,5 +79,5 @@ def main(args: argparse.Namespace) -> int:
             counts = {"received": rec.received, "written": rec.written, "max_queue": rec.max_queue}
         svc.status.extra.update({k: float(v) for k, v in counts.items()})
         svc.log.info("recorded %d messages (%d received) to %s", counts["written"], counts["received"], out)
-    print(json.dumps({"out": str(out), **counts}))
+    emit_json({"out": str(out), **counts}, indent=None)
     return 0 if counts["written"] == counts["received"] else 1

@@ -10,7 +10,6 @@ then compare the two.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 
@@ -20,6 +19,7 @@ from services.recorder.mcap_io import read_recording
 from services.recorder.replay import ReplayPlan
 from shared.bus import ServiceRunner, add_bus_args
 from shared.keys import DEFAULT_SESSION, Keys
+from shared.report import emit_json
 
 log = logging.getLogger("mimic.replay")
 
@@ -85,5 +85,5 @@ def main(args: argparse.Namespace) -> int:
         "late_ms_p50": round(1e3 * late[len(late) // 2], 3) if late else 0.0,
         "late_ms_max": round(1e3 * late[-1], 3) if late else 0.0,
     }
-    print(json.dumps(report))
+    emit_json(report, indent=None)
     return 0

@@ -10,7 +10,6 @@ box, frames where the bounded clamp acted, and ``Retargeter.step`` time percenti
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from shared.messages import TARGET_NAMES
+from shared.report import emit_json
 
 from .mapping import MODES
 from .retargeter import RetargetConfig, Retargeter
@@ -65,9 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     paths = args.clips or sorted((DEFAULT_DIR / "bvh").glob("*.bvh"))
     if not paths:
-        print(json.dumps({"error": f"no clips given and none in {DEFAULT_DIR / 'bvh'}"}))
+        emit_json({"error": f"no clips given and none in {DEFAULT_DIR / 'bvh'}"})
         return 2
-    print(json.dumps(evaluate(paths, tuple(args.modes)), indent=2))
+    emit_json(evaluate(paths, tuple(args.modes)))
     return 0
 
 

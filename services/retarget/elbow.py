@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import norm3
 
 #: Swivel direction used when the operator's arm is straight [m]: blended in with this weight,
 #: so the direction stays continuous when the elbow crosses the shoulder-wrist line.
@@ -88,7 +89,7 @@ class ArmGeometry:
     def reachable(self, wrist: np.ndarray) -> np.ndarray:
         """The wrist target (3,) [m] moved radially into the reach shell around the shoulder centre."""
         a = np.asarray(wrist, dtype=float) - self.centre
-        d = float(np.linalg.norm(a))
+        d = norm3(a)
         if d < 1e-9:
             return self.centre + self.reach[0] * self.default_swivel
         return self.centre + a * (min(max(d, self.reach[0]), self.reach[1]) / d)
@@ -100,7 +101,7 @@ class ArmGeometry:
         only its direction perpendicular to the robot's shoulder-wrist line is used).
         """
         a = np.asarray(wrist, dtype=float) - self.centre
-        d = float(np.linalg.norm(a))
+        d = norm3(a)
         if d < 1e-9:
             return self.centre + self.upper * self.default_swivel
         u = a / d
@@ -109,16 +110,16 @@ class ArmGeometry:
         x = (self.upper**2 - self.fore**2 + d**2) / (2.0 * d)
         r = np.sqrt(max(self.upper**2 - x**2, 0.0))
         n = _perp(np.asarray(swivel, dtype=float) + _STRAIGHT_BLEND * self.default_swivel, a)
-        nn = np.linalg.norm(n)
+        nn = norm3(n)
         if nn < 1e-9:
             n = _perp(self.default_swivel + np.array([0.0, 0.0, -1.0]), a)
-            nn = np.linalg.norm(n)
+            nn = norm3(n)
         return self.centre + x * u + r * (n / max(nn, 1e-12))
 
 
 def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Component of v (3,) perpendicular to axis (3,)."""
-    u = axis / max(np.linalg.norm(axis), 1e-12)
+    u = axis / max(norm3(axis), 1e-12)
     return v - (v @ u) * u
 
 

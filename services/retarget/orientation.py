@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.rotations import cross3, matrix_to_quat, norm3, quat_to_matrix
 
 __all__ = ["matrix_to_quat", "quat_to_matrix"]
 
@@ -98,15 +98,15 @@ def calibration_orientations(
 
 def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Smallest rotation (3, 3) turning direction a (3,) onto direction b (3,)."""
-    a = np.asarray(a, dtype=float) / np.linalg.norm(a)
-    b = np.asarray(b, dtype=float) / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
+    a = np.asarray(a, dtype=float) / norm3(np.asarray(a, dtype=float))
+    b = np.asarray(b, dtype=float) / norm3(np.asarray(b, dtype=float))
+    axis = cross3(a, b)
+    s, c = norm3(axis), float(a @ b)
     if s < 1e-12:
         if c > 0:
             return np.eye(3)
-        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        return pin.exp3(np.pi * perp / np.linalg.norm(perp))
+        perp = cross3(a, np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+        return pin.exp3(np.pi * perp / norm3(perp))
     return pin.exp3(axis / s * np.arctan2(s, c))
 
 
@@ -123,12 +123,15 @@ def arm_frame(upper: np.ndarray, fore: np.ndarray) -> np.ndarray | None:
     Returns:
         The frame, or None when the arm is nearly straight (plane undefined).
     """
-    x = np.asarray(fore, dtype=float) / np.linalg.norm(fore)
-    z = np.cross(np.asarray(upper, dtype=float) / np.linalg.norm(upper), x)
-    if np.linalg.norm(z) < STRAIGHT_SIN:
+    fore = np.asarray(fore, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    x = fore / norm3(fore)
+    z = cross3(upper / norm3(upper), x)
+    nz = norm3(z)
+    if nz < STRAIGHT_SIN:
         return None
-    z /= np.linalg.norm(z)
-    return np.column_stack([x, np.cross(z, x), z])
+    z /= nz
+    return np.array([x, cross3(z, x), z]).T
 
 
 def arm_alignment(up_H: np.ndarray, fore_H: np.ndarray, up_U: np.ndarray, fore_U: np.ndarray) -> np.ndarray:

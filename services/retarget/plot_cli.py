@@ -11,12 +11,13 @@ box and clamped, step time percentiles.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
 
 import numpy as np
+
+from shared.report import emit_json
 
 from .cli import add_retarget_options, config_from_args
 
@@ -122,5 +123,5 @@ def main(args: argparse.Namespace) -> int:
             "operator_range_m": np.round(np.nanmax(H[t], 0) - np.nanmin(H[t], 0), 3).tolist() if ok.any() else None,
             "robot_range_m": np.round(np.nanmax(U[t], 0) - np.nanmin(U[t], 0), 3).tolist() if ok.any() else None,
         }
-    print(json.dumps(report, indent=2))
+    emit_json(report)
     return 0

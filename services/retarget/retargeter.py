@@ -160,6 +160,8 @@ class Retargeter:
             if self.config.elbow_placement == "swivel"
             else {}
         )
+        #: side -> swivel elbow placed for the current frame's wrist target
+        self._placed: dict[str, np.ndarray] = {}
         self.rejects: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_reject: tuple[str, str] | None = None
@@ -291,6 +293,7 @@ class Retargeter:
             self._posture_maps(frame)
         self.counts["frames"] += 1
         targets: dict[str, Target] = {}
+        self._placed.clear()
         for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
             targets[t] = self._target(t, frame, dt, targets)
         return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
@@ -330,10 +333,14 @@ class Retargeter:
         arm = self.arms.get(side)
         if arm is None or wrist is None or not wrist.valid or self.config.mode == "incremental":
             return None
-        bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
-        if any(b is None or not b.valid for b in bones):
-            return None
-        p = arm.place(wrist.p, human_swivel(*(np.asarray(b.p, dtype=float) for b in bones)))
+        if side in self._placed:  # placed for this frame's wrist already (forearm orientation)
+            p = self._placed[side]
+        else:
+            bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
+            if any(b is None or not b.valid for b in bones):
+                return None
+            p = arm.place(wrist.p, human_swivel(*(np.asarray(b.p, dtype=float) for b in bones)))
+            self._placed[side] = p
         if t.endswith("wrist"):  # forearm direction for ForearmOrientationMap: no clamping
             return p
         if self.config.mode == "bounded":

@@ -23,7 +23,6 @@ VelocityLimit, on the same frames.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import platform
@@ -36,6 +35,7 @@ import pinocchio as pin
 from services.solver.algorithms import ALGORITHMS, USES_QP
 from services.solver.core import SolverConfig, SolverCore
 from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
+from shared.report import emit_json
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import matrix_to_quat
 
@@ -338,10 +338,7 @@ def main(args: argparse.Namespace) -> int:
             f"  {mk['tick_ms']['p99']:>8.4f}           -   ({mk['ratio_p50_vs_hqp_nullspace']}x hqp-nullspace p50)"
         )
     log.info("\n%s", "\n".join(lines))
-    text = json.dumps(report, indent=2)
-    if args.json:
-        args.json.write_text(text)
-    print(text)
+    emit_json(report, args.json)
     return 0
 
 

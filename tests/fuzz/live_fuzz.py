@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
-import signal
 import subprocess
 import sys
 import threading
@@ -32,9 +30,11 @@ import numpy as np
 import zenoh
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
+from services.launcher.supervisor import stop_processes
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import HumanFrame, Message, MessageError, ServiceStatus, TaskTargets
+from shared.report import emit_json
 from tests.fuzz.fuzz_payloads import adversarial_payload, backwards_sequence, valid_message
 
 REPO = Path(__file__).resolve().parents[2]
@@ -301,19 +301,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         report = fuzz_live_service(endpoint, session, target, payloads, svc, rate=args.rate, timeout=60.0)
     finally:
-        for proc in (svc, router):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop_processes(svc, router)
     report["generate_s"] = round(gen_s, 1)
-    text = json.dumps(report, indent=1)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
-    print(text)
+    emit_json(report, args.json, indent=1)
     return 0 if report["ok"] else 1
 
 

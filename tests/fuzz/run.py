@@ -11,17 +11,16 @@ Exit status 1 when there was any crash.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import traceback
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
 from shared.messages import MESSAGE_TYPES
+from shared.report import emit_json
 from tests.fuzz.fuzz_payloads import adversarial_payload, check_payload
 
 
@@ -85,11 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         "wall_seconds": round(time.perf_counter() - t0, 1),
         "types": results,
     }
-    text = json.dumps(report, indent=1)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
-    print(text)
+    emit_json(report, args.json, indent=1)
     return 1 if report["total_crashes"] else 0
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
@@ -10,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from services.launcher.supervisor import stop_processes
 from tests.fuzz.live_fuzz import SERVICES, fuzz_live_service, payload_mix
 
 REPO = Path(__file__).resolve().parents[2]
@@ -33,12 +33,7 @@ def test_retarget_counts_every_bad_payload_and_emits_no_nan(zenoh_endpoint):
         procs.append(svc)
         report = fuzz_live_service(zenoh_endpoint, "fuzzlive", target, payloads, svc, rate=500, timeout=40)
     finally:
-        for p in reversed(procs):
-            p.send_signal(signal.SIGINT)
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_processes(*reversed(procs))
     assert report["service_alive"] and report["handler_errors"] == 0, report
     assert sum(report["expected_rejects"].values()) > 50  # the mix really was mostly bad
     if report["dropped"] == 0:  # nothing evicted unread: every bad payload counted under its own reason

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from services.launcher.supervisor import stop_processes
 from services.recorder.bench_cli import make_frame, run_bench, wait_recording
 from services.recorder.mcap_io import RecordingWriter, read_recording
 from shared.bus import bus_args, open_session
@@ -36,11 +37,7 @@ def router(zenoh_endpoint):
     proc = _spawn([*CLI, "router", "--listen", zenoh_endpoint], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(0.8)
     yield zenoh_endpoint
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    stop_processes(proc)
 
 
 @pytest.mark.slow

@@ -27,6 +27,7 @@ import pytest
 from faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
 
 from services.evaluation.soak import Observer, free_port
+from services.launcher.supervisor import stop_processes
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -151,10 +152,4 @@ def test_mimic_up_restart_brings_a_killed_service_back(tmp_path):
     finally:
         if obs is not None:
             obs.close()
-        for p in (pub, up):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                try:
-                    p.wait(20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop_processes(pub, up, timeout=20)

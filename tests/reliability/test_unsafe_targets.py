@@ -10,6 +10,7 @@ and the solver must say that it cannot follow (status and residuals).
 from __future__ import annotations
 
 import collections
+import signal
 import subprocess
 import sys
 import threading
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from services.launcher.supervisor import stop_processes
 from services.solver.core import SolverConfig, SolverCore
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
@@ -229,13 +231,7 @@ def test_real_solver_process_stays_safe_on_unsafe_targets(robot, zenoh_endpoint)
             for s in subs:
                 s.undeclare()
     finally:
-        for p in (solver, router):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop_processes(solver, router, sig=signal.SIGTERM)
 
     dt = 1.0 / 500.0
     assert len(cmds) > 100, f"only {len(cmds)} commands"

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -19,6 +18,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from services.launcher.supervisor import stop_processes
 from shared.bus import ServiceRunner, bus_args
 from shared.keys import Keys
 from shared.messages import ServiceStatus
@@ -59,11 +59,7 @@ def router(certs):
     time.sleep(1.5)
     assert proc.poll() is None, proc.stderr.read()
     yield f"tls/localhost:{port}"
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    stop_processes(proc)
 
 
 def _conf(certs_dir: Path, name: str, endpoint: str) -> zenoh.Config:

@@ -14,6 +14,7 @@ import pinocchio as pin
 import pytest
 import zenoh
 
+from services.launcher.supervisor import stop_processes
 from services.router.cli import router_config
 from shared.bus import bus_args, zenoh_config
 from shared.keys import Keys
@@ -42,12 +43,7 @@ def _start(router, session, *extra):
 
 
 def _stop(proc):
-    proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return None
+    return stop_processes(proc, sig=signal.SIGTERM)[0]
 
 
 def test_main_and_shadow_solvers_start_from_the_robot_state_and_publish(router):
