@@ -143,7 +143,10 @@ def test_replay_original_timing_and_fast_into_new_session(router, tmp_path):
     assert not [g for g in got if g[1] == new.status("solver")]
     assert report["published"] == len(frames) and report["skipped"] == len(frames)
     rel = np.array([g[0] for g in frame_msgs]) - frame_msgs[0][0]
-    err = np.abs(rel - np.array(offsets))
+    # Against the median transport delay, not the first frame's: on a loaded machine the first
+    # sample can take a path ~15 ms faster than the rest, which is not a replay timing error.
+    dev = rel - np.array(offsets)
+    err = np.abs(dev - np.median(dev))
     # Scheduling spikes of a loaded 2-core machine are tolerated; drift is not (absolute deadlines).
     assert np.median(err) < 0.005 and np.percentile(err, 90) < 0.02, err
     assert np.median(err[-10:]) < 0.01, err
