@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from services.launcher.stack import load_stack, local_environment
+from services.launcher.stack import forget_state, load_stack, local_environment
 from services.launcher.supervisor import Supervisor
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> dict:
     session = f"bench{port}"
     keys = Keys(session)
     stack = load_stack(env={"MIMIC_SESSION": session, "SOLVER": args.algo})
+    forget_state(stack.values(), Path.cwd())
     sup = Supervisor(out=sys.stderr)
     wanted = ["zenoh", "retarget", "solver", "sim"]
     extra = {"solver": args.solver_args.split(), "sim": args.sim_args.split()}
@@ -160,6 +161,7 @@ def run(args: argparse.Namespace) -> dict:
         z.close()
     finally:
         sup.stop_all()
+        forget_state(stack.values(), Path.cwd())  # a throw-away session leaves no state behind
 
     first = int(args.warmup * args.rate)
     measured = range(first, n_total)

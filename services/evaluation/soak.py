@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from services.launcher.stack import load_stack, local_environment
+from services.launcher.stack import forget_state, load_stack, local_environment
 from services.launcher.supervisor import Supervisor
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
@@ -86,6 +86,7 @@ class LocalStack:
         self.endpoint = endpoint
         self.status_period = status_period
         self.spec = load_stack(env={"MIMIC_SESSION": session, **(env or {})})
+        forget_state(self.spec.values(), Path.cwd())
         self.log = io.StringIO()  # every child's prefixed output, for failure messages
         self.sup = Supervisor(out=self.log)
         self.argv: dict[str, list[str]] = {}
@@ -161,6 +162,7 @@ class LocalStack:
         for n in order:
             if n in self.sup.children:
                 self.sup.stop(n, timeout=5.0)
+        forget_state(self.spec.values(), Path.cwd())  # throw-away sessions leave no state behind
 
     def __enter__(self) -> LocalStack:
         return self

@@ -21,7 +21,7 @@ from pathlib import Path
 import zenoh
 
 from services.launcher.monitor import BusMonitor
-from services.launcher.stack import ROUTER_SERVICE, load_stack, local_environment, select
+from services.launcher.stack import ROUTER_SERVICE, forget_state, load_stack, local_environment, select
 from services.launcher.supervisor import Supervisor
 from shared.bus import DEFAULT_ROUTER
 from shared.keys import Keys
@@ -116,6 +116,8 @@ def main(args: argparse.Namespace) -> int:
     monitor = session_z = None
     code = 0
     try:
+        for path in forget_state(specs, repo):
+            log.info("new stack: removed the previous service state %s", path)
         for spec in specs:
             sup.start(
                 spec.name, _mimic_argv(spec.command), local_environment(spec, args.endpoint), restart=args.restart
@@ -161,6 +163,7 @@ def main(args: argparse.Namespace) -> int:
         order = [n for n in reversed(list(sup.children)) if n not in STOP_LAST]
         order += [n for n in STOP_LAST if n in sup.children]
         codes = sup.stop_all(order)
+        forget_state(specs, repo)  # the stack's state lives as long as the stack
         summary = monitor.summary() if monitor else {}
         if monitor:
             monitor.close()

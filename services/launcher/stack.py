@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -97,3 +98,23 @@ def local_environment(spec: ServiceSpec, endpoint: str, session: str | None = No
     if session is not None and "MIMIC_SESSION" in env:
         env["MIMIC_SESSION"] = session
     return env
+
+
+#: Flags naming a file a service keeps across its own restarts (not across stacks).
+STATE_FLAGS = ("--calibration-state",)
+
+
+def forget_state(specs: Iterable[ServiceSpec], root: Path) -> list[Path]:
+    """Delete the state files (``STATE_FLAGS``) of the given services; returns those removed.
+
+    A new stack is a new operator session: the retarget calibration must come from that
+    operator's rest pose, not from the last run. Supervisor restarts keep the file, so a
+    crashed retarget comes back with the calibration it had. Relative paths are from ``root``.
+    """
+    removed = []
+    for spec in specs:
+        for flag, value in zip(spec.command, spec.command[1:]):
+            if flag in STATE_FLAGS and (root / value).exists():
+                (root / value).unlink()
+                removed.append(root / value)
+    return removed

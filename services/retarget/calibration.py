@@ -165,7 +165,10 @@ class Calibration:
         """Write JSON to ``path`` (parents created)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        # Write then rename: a kill mid-write leaves the previous file, never a truncated one.
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        tmp.replace(path)
         return path
 
     @classmethod

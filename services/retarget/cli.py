@@ -86,6 +86,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--save-calibration", type=Path, default=None, help="write every new calibration (auto or set) to this JSON"
     )
     p.add_argument(
+        "--calibration-state",
+        type=Path,
+        default=None,
+        help="calibration kept across restarts: loaded at start when it exists (unless --calibration), "
+        "rewritten on every new calibration, so a restarted retarget does not recalibrate on a moving operator",
+    )
+    p.add_argument(
         "--no-auto-calibrate",
         action="store_true",
         help="without --calibration, wait for one on the calibration queryable instead of using the first frame",
@@ -93,16 +100,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_args(p)
 
 
-def main(args: argparse.Namespace) -> int:
+def initial_calibration(args: argparse.Namespace):
+    """The calibration to start with: ``--calibration``, else ``--calibration-state`` when it
+    exists (a restart), else None (auto-calibration on the first rest frame).
+
+    Raises CalibrationError for a bad ``--calibration``; a bad state file is logged and ignored
+    so it cannot keep the service down.
+    """
     from .calibration import Calibration, CalibrationError
+
+    if args.calibration:
+        return Calibration.load(args.calibration)
+    state = getattr(args, "calibration_state", None)
+    if state is None or not state.exists():
+        return None
+    try:
+        calibration = Calibration.load(state)
+    except (CalibrationError, ValueError, OSError) as exc:
+        log.warning("ignoring calibration state %s: %s; calibrating afresh", state, exc)
+        return None
+    log.info("calibration restored from %s (%s)", state, calibration.source)
+    return calibration
+
+
+def main(args: argparse.Namespace) -> int:
+    from .calibration import CalibrationError
     from .node import run
     from .retargeter import Retargeter
 
     try:
         config = config_from_args(args)
-        calibration = Calibration.load(args.calibration) if args.calibration else None
-        retargeter = Retargeter(config, calibration)
+        retargeter = Retargeter(config, initial_calibration(args))
     except (CalibrationError, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    return run(args, retargeter, args.save_calibration)
+    saves = [p for p in (args.save_calibration, getattr(args, "calibration_state", None)) if p is not None]
+    return run(args, retargeter, saves)

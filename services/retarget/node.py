@@ -18,6 +18,7 @@ import json
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
 
 import msgpack
@@ -52,13 +53,13 @@ class RetargetNode:
     Args:
         retargeter: the pure logic.
         svc: an entered ServiceRunner.
-        save_calibration: file every new calibration (auto or set) is written to, or None.
+        save_calibration: files every new calibration (auto or set) is written to (may be empty).
     """
 
-    def __init__(self, retargeter: Retargeter, svc: ServiceRunner, save_calibration: Path | None = None):
+    def __init__(self, retargeter: Retargeter, svc: ServiceRunner, save_calibration: Sequence[Path] = ()):
         self.retargeter = retargeter
         self.svc = svc
-        self.save_calibration = save_calibration
+        self.save_calibration = list(save_calibration)
         self._lock = threading.Lock()
         self._step_us: deque[float] = deque(maxlen=2000)
         self._calibration_seen = retargeter.calibration
@@ -100,11 +101,11 @@ class RetargetNode:
         self.svc.log.info(
             "calibration %s: rest %s", cal.source, {t: np.round(p, 3).tolist() for t, p in cal.rest.items()}
         )
-        if self.save_calibration is not None:
+        for path in self.save_calibration:
             try:
-                cal.save(self.save_calibration)
+                cal.save(path)
             except OSError as exc:
-                self.svc.status.error(f"cannot save calibration to {self.save_calibration}: {exc}")
+                self.svc.status.error(f"cannot save calibration to {path}: {exc}")
 
     def on_calibration(self, payload: bytes | None) -> bytes:
         """Queryable handler: GET returns the calibration, a payload sets it (see module doc)."""
@@ -150,7 +151,7 @@ class RetargetNode:
         st.state = "ok" if calibrated else "degraded"
 
 
-def run(args, retargeter: Retargeter, save_calibration: Path | None = None) -> int:
+def run(args, retargeter: Retargeter, save_calibration: Sequence[Path] = ()) -> int:
     """Run the service until SIGINT/SIGTERM."""
     with ServiceRunner("retarget", args) as svc:
         node = RetargetNode(retargeter, svc, save_calibration)

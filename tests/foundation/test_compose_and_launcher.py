@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.stack import COMPOSE_FILE, NETWORK_ENV, load_stack, local_environment, select
+from services.launcher.stack import COMPOSE_FILE, NETWORK_ENV, forget_state, load_stack, local_environment, select
 
 REPO = Path(__file__).resolve().parents[2]
 COMPOSE_BIN = shutil.which("docker-compose", path=str(Path(sys.executable).parent)) or shutil.which("docker-compose")
@@ -60,6 +60,20 @@ def test_local_environment_only_moves_network_endpoints():
         env = local_environment(spec, "tcp/127.0.0.1:5555")
         for k, v in spec.environment.items():
             assert env[k] == ("tcp/127.0.0.1:5555" if k in NETWORK_ENV else v)
+
+
+def test_a_new_stack_forgets_the_retarget_calibration_state(tmp_path):
+    stack = load_stack(env={"MIMIC_SESSION": "fresh"})
+    cmd = stack["retarget"].command
+    state = tmp_path / cmd[cmd.index("--calibration-state") + 1]
+    assert "fresh" in state.name  # per session
+    state.parent.mkdir(parents=True)
+    state.write_text("{}")
+    other = tmp_path / "runs" / "other_session_calibration.json"
+    other.write_text("{}")
+    assert forget_state(stack.values(), tmp_path) == [state]
+    assert not state.exists() and other.exists()
+    assert forget_state(stack.values(), tmp_path) == []
 
 
 def _children(pid: int) -> set[int]:

@@ -150,6 +150,9 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
         20,
         f"stream resumed after restarting {victim}",
     )
+    if victim == "retarget":
+        # The operator is moving now: the restarted retarget must keep the session's calibration.
+        res["retarget_calibration_restored"] = "calibration restored from" in stack.log.getvalue()[log_mark:]
     res["startup_s"] = t_alive - t_restart  # process start until its liveliness token
     res["resume_after_alive_s"] = t_resume - t_alive  # token until a new frame reached the robot state
     res["resume_after_restart_s"] = t_resume - t_restart

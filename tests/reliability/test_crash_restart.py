@@ -67,6 +67,8 @@ def test_kill9_each_service_and_restart(tmp_path):
                 assert r["new_solver_first_cmd_vs_state_rad"] < VMAX * SOLVER_DT + SERVO_TOL, ctx
                 # Within vmax*dt per tick (x2: one command lost on the way doubles one step).
                 assert r["new_solver_max_cmd_step_rad"] <= VMAX * SOLVER_DT * 2 + 1e-9, ctx
+            if victim == "retarget":
+                assert r["retarget_calibration_restored"], ctx
             # Back on the bus, the stream resumes within 1 s; it carries new frames.
             assert r["resume_after_alive_s"] < 1.0, ctx
             assert r["seq_advanced"], ctx

@@ -130,3 +130,33 @@ def test_one_armed_capture_mirrors_the_measured_arm():
     S = np.diag([1.0, -1.0, 1.0])
     np.testing.assert_allclose(R_left, S @ R_right @ S, atol=1e-12)
     assert cal.arm_length["left"] == cal.arm_length["right"]
+
+
+def _cli_args(*argv: str):
+    import argparse
+
+    from services.retarget.cli import add_arguments
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return p.parse_args(list(argv))
+
+
+def test_calibration_state_survives_a_restart_and_a_bad_state_is_ignored(tmp_path):
+    from services.retarget.cli import initial_calibration
+
+    state = tmp_path / "runs" / "s_calibration.json"
+    args = _cli_args("--calibration-state", str(state))
+    assert initial_calibration(args) is None  # first start: auto-calibrate on the rest frame
+    cal = anthropometric(make_frame(0, 0.0))
+    cal.save(state)  # what the node writes on every new calibration
+    assert not state.with_name(state.name + ".tmp").exists()  # written whole, then renamed
+    restored = initial_calibration(args)  # the restarted service
+    assert restored is not None
+    for t in TARGET_NAMES:
+        np.testing.assert_allclose(restored.rest[t], cal.rest[t])
+    state.write_text("{ truncated")
+    assert initial_calibration(args) is None  # a corrupt state cannot keep the service down
+    given = tmp_path / "given.json"
+    cal.save(given)
+    assert initial_calibration(_cli_args("--calibration", str(given), "--calibration-state", str(state))) is not None

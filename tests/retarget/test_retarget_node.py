@@ -53,7 +53,7 @@ def test_node_retargets_every_frame_and_serves_calibration(router, robot14, work
     args = bus_args(connect=[router], session="rt_node", status_period=0.2)
     r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
     with ServiceRunner("retarget", args, install_signals=False) as svc:
-        node = RetargetNode(r, svc, save_calibration=tmp_path / "cal.json")
+        node = RetargetNode(r, svc, save_calibration=[tmp_path / "cal.json"])
         client = _client(router)
         got: queue.Queue = queue.Queue()
         client.declare_subscriber(keys.targets, lambda s: got.put(TaskTargets.decode(s.payload.to_bytes())))
