@@ -101,6 +101,7 @@ def test_mimic_up_restart_brings_a_killed_service_back(tmp_path):
     session = f"uprestart{endpoint.rsplit(':', 1)[1]}"
     argv = [sys.executable, "-m", "services.cli", "up", "--restart", "--endpoint", endpoint, "--session", session]
     argv += ["--only", "retarget", "--only", "solver", "--only", "sim", "--duration", "60"]
+    argv += ["--summary", str(tmp_path / "summary.json")]  # not into the repo's runs/
     up = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True).start()
