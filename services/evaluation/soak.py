@@ -346,8 +346,8 @@ class FramePublisher:
             target = start + k * period
             now = time.monotonic()
             if now < target:
-                if target - now > 0.0015:
-                    time.sleep(target - now - 0.001)
+                # Sleep, never spin: a busy-waiting publisher takes a core from the services.
+                time.sleep(target - now)
                 continue
             if now - target > 5 * period:
                 self.late += 1
