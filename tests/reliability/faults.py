@@ -100,6 +100,10 @@ def max_state_velocity(states: list[StateSample], vmax: np.ndarray) -> tuple[flo
     return worst, pairs
 
 
+#: Time after the watchdog hold starts from which the joints must be still [s].
+HOLD_SETTLE_S = 0.5
+
+
 def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     """``kill -9`` one service, check the others and the watchdog, restart it, time the resume."""
     others = [n for n in PIPELINE if n != victim]
@@ -115,7 +119,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     )
     res: dict = {"victim": victim, "liveliness_delete_s": t_gone - t_kill}
     # Watch the stack without the victim for a while.
-    time.sleep(0.8)
+    time.sleep(1.2)  # long enough for the held joints to settle (HOLD_SETTLE_S)
     t_watch = time.monotonic()
     res["others_running"] = {n: stack.running(n) and stack.pid(n) == pids_before[n] for n in others}
     with obs.lock:
@@ -130,8 +134,11 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
         held = [s for s in after if s.holding]
         res["held_states"] = len(held)
         res["hold_q_drift_rad"] = float(max(np.max(np.abs(s.q - held[0].q)) for s in held)) if held else None
-        # Once the servo settled on the held target (0.1 s), the joints stay put.
-        settled = [s for s in held if s.sim_time >= held[0].sim_time + 0.1]
+        # Once the servos settled on the held target, the joints stay put. The slowest are the
+        # waist joints carrying the torso: after a hold from 4 rad/s (SimCore, lock-step) they
+        # still move 0.004 rad after 0.1 s, 0.0013 after 0.3 s, 0.0001 after 0.5 s; CI saw 0.02
+        # after 0.1 s following faster motion.
+        settled = [s for s in held if s.sim_time >= held[0].sim_time + HOLD_SETTLE_S]
         res["hold_q_drift_settled_rad"] = (
             float(max(np.max(np.abs(s.q - settled[0].q)) for s in settled)) if settled else None
         )
