@@ -18,6 +18,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -84,6 +85,26 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         # Peers listen on an ephemeral loopback port so gossip lets them reach each other directly.
         conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
     return conf
+
+
+def free_port() -> int:
+    """A TCP port free on loopback right now (for routers and test endpoints)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for_endpoint(endpoint: str, timeout: float) -> bool:
+    """Wait until a TCP endpoint (``tcp/HOST:PORT``) accepts connections; False after ``timeout`` [s]."""
+    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, int(port))) == 0:
+                return True
+        time.sleep(0.1)
+    return False
 
 
 def open_session(args: argparse.Namespace) -> zenoh.Session:

@@ -608,13 +608,19 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 
-def peek_type(payload: bytes) -> str | None:
-    """Message type name of a payload without full validation (None if unreadable)."""
+def _peek(payload: bytes) -> dict | None:
+    """The top-level map of a payload, unvalidated (None if unreadable or not a map)."""
     try:
         d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-        return d.get("t") if isinstance(d, dict) else None
     except Exception:
         return None
+    return d if isinstance(d, dict) else None
+
+
+def peek_type(payload: bytes) -> str | None:
+    """Message type name of a payload without full validation (None if unreadable)."""
+    d = _peek(payload)
+    return None if d is None else d.get("t")
 
 
 def peek_header(payload: bytes) -> Header | None:
@@ -623,8 +629,10 @@ def peek_header(payload: bytes) -> Header | None:
     For observers (benchmarks, monitors) that only need ``seq`` and ``t0`` at high rate;
     services decode fully.
     """
+    d = _peek(payload)
+    if d is None or "hdr" not in d:
+        return None
     try:
-        d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-        return Header.from_wire(d["hdr"]) if isinstance(d, dict) and "hdr" in d else None
+        return Header.from_wire(d["hdr"])
     except Exception:
         return None

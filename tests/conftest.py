@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import os
-import socket
 from pathlib import Path
 
 import pytest
+
+from shared.bus import free_port
 
 REPO = Path(__file__).resolve().parents[1]
 #: Real recorded motion lives beside the repo (never copied into it).
@@ -35,12 +36,6 @@ def bvh_clips() -> list[Path]:
 @pytest.fixture(scope="session")
 def c3d_dir() -> Path:
     return _require(MOCAP_DIR / "c3d")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture()

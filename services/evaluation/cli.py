@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from services.evaluation.metrics import REACHABLE_TOL, reachable_mask, summarise, trace_metrics
 from services.evaluation.runner import EVAL_RETARGET, REFERENCE_ALGO, load_and_retarget, run_algorithm
+from services.retarget.mapping import ELBOW_PLACEMENTS, ORIENTATION_REFERENCES
 from services.solver.algorithms import ALGORITHMS
 from services.solver.core import SolverConfig
 from shared.robot.pinocchio_model import build_robot_model
@@ -42,8 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--elbow-placement",
-        default=EVAL_RETARGET["elbow_placement"],
-        choices=("swivel", "mapped"),
+        default=ELBOW_PLACEMENTS[0],
+        choices=ELBOW_PLACEMENTS,
         help="swivel: elbow targets reachable with the wrist target; mapped: the paper's eqs. 1-3 per axis",
     )
     p.add_argument(
@@ -54,8 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--orientation-reference",
-        default=EVAL_RETARGET["orientation_reference"],
-        choices=("forearm", "posture", "rest"),
+        default=ORIENTATION_REFERENCES[0],
+        choices=ORIENTATION_REFERENCES,
         help="eq. 4 orientation mapping: forearm-relative (default), calibration posture, or the profile rest",
     )
     p.add_argument(
@@ -80,12 +81,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         raise SystemExit(f"unknown algorithms {unknown}; known: {sorted(ALGORITHMS)}")
     robot = build_robot_model(with_waist=not args.no_waist)
     level = getattr(args, "wrist_orientation_level", None)
-    elbows = getattr(args, "elbow_placement", EVAL_RETARGET["elbow_placement"])
-    oref = getattr(args, "orientation_reference", EVAL_RETARGET["orientation_reference"])
+    elbows = getattr(args, "elbow_placement", ELBOW_PLACEMENTS[0])
+    oref = getattr(args, "orientation_reference", ORIENTATION_REFERENCES[0])
     if getattr(args, "paper", False):
         level, elbows, oref = 1, "mapped", "rest"
-    if elbows == "mapped" and oref == "forearm":
-        oref = "posture"  # the forearm map needs swivel elbows
     solver = {} if level is None else {"wrist_orientation_level": level}
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None

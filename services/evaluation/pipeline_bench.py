@@ -23,7 +23,7 @@ import zenoh
 
 from services.launcher.stack import forget_state, load_stack, local_environment
 from services.launcher.supervisor import Supervisor
-from shared.bus import bus_args, open_session
+from shared.bus import bus_args, free_port, open_session
 from shared.keys import Keys
 from shared.messages import ServiceStatus, peek_header
 from shared.report import emit_json
@@ -41,14 +41,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--solver-args", default="", help="extra solver flags, e.g. '--qp daqp'")
     p.add_argument("--sim-args", default="", help="extra sim flags")
     p.add_argument("--warmup", type=float, default=1.0, help="seconds of frames before measuring")
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class _Arrivals:
@@ -75,7 +67,7 @@ def _frames(n_frames: int, rate: float):
 
 
 def run(args: argparse.Namespace) -> dict:
-    port = args.port or _free_port()
+    port = args.port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     session = f"bench{port}"
     keys = Keys(session)

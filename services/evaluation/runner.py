@@ -38,13 +38,10 @@ log = logging.getLogger("mimic.eval")
 WRISTS = ("left_wrist", "right_wrist")
 ELBOWS = ("left_elbow", "right_elbow")
 REFERENCE_ALGO = "hqp-nullspace"
-#: Retarget settings of the evaluation: elbow targets the robot can reach with its wrist target
-#: (see services/retarget/elbow.py); the paper's per-axis elbow mapping is ``elbow_placement="mapped"``.
-#: Raw finite-difference velocities: the 50 ms low-pass lags the extrapolated reference between
-#: 30 fps frames (HQP wrist error 0.28 -> 0.17 cm mean on byebye_normal).
-#: Wrist orientations relative to the forearm, against the robot's calibration posture
-#: (services/retarget/orientation.py ForearmOrientationMap).
-EVAL_RETARGET: dict = {"elbow_placement": "swivel", "velocity_tau": 0.0, "orientation_reference": "forearm"}
+#: Retarget settings of the evaluation beyond the service defaults (swivel elbows, forearm-relative
+#: orientations): raw finite-difference velocities, since the 50 ms low-pass lags the extrapolated
+#: reference between 30 fps frames (HQP wrist error 0.28 -> 0.17 cm mean on byebye_normal).
+EVAL_RETARGET: dict = {"velocity_tau": 0.0}
 
 
 @dataclass

@@ -28,7 +28,6 @@ import io
 import logging
 import os
 import signal
-import socket
 import sys
 import tempfile
 import threading
@@ -40,32 +39,14 @@ import numpy as np
 import zenoh
 
 from services.launcher.stack import forget_state, load_stack, local_environment
-from services.launcher.supervisor import Supervisor
-from shared.bus import bus_args, open_session
+from services.launcher.supervisor import Supervisor, rss_mb
+from shared.bus import bus_args, free_port, open_session, wait_for_endpoint
 from shared.keys import Keys
 from shared.messages import SCHEMA_VERSION, HumanFrame, JointCommand, RobotState, ServiceStatus
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.soak")
 PIPELINE = ("retarget", "solver", "sim")
-
-
-def free_port() -> int:
-    """A free TCP port on loopback."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def rss_mb(pid: int) -> float | None:
-    """Resident set size of ``pid`` [MB], or None when it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
 
 
 # --------------------------------------------------------------------------- processes
@@ -122,16 +103,8 @@ class LocalStack:
     def start_all(self, names: list[str], extra: dict[str, list[str]] | None = None) -> None:
         """Router first (waits until it accepts connections), then the named services."""
         self.start("zenoh")
-        host, port = self.endpoint.split("/", 1)[1].rsplit(":", 1)
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                socket.create_connection((host, int(port)), timeout=0.5).close()
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f"router not listening on {self.endpoint}:\n{self.output()}") from None
-                time.sleep(0.1)
+        if not wait_for_endpoint(self.endpoint, 20.0):
+            raise RuntimeError(f"router not listening on {self.endpoint}:\n{self.output()}")
         for n in names:
             self.start(n, (extra or {}).get(n))
 

@@ -12,7 +12,6 @@ import logging
 import os
 import shutil
 import signal
-import socket
 import sys
 import threading
 import time
@@ -23,7 +22,7 @@ import zenoh
 from services.launcher.monitor import BusMonitor
 from services.launcher.stack import ROUTER_SERVICE, forget_state, load_stack, local_environment, select
 from services.launcher.supervisor import Supervisor
-from shared.bus import DEFAULT_ROUTER
+from shared.bus import DEFAULT_ROUTER, wait_for_endpoint
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.up")
@@ -52,18 +51,6 @@ def _mimic_argv(command: list[str]) -> list[str]:
     if command and command[0] == "mimic":
         return [sys.executable, "-m", "services.cli", *command[1:]]
     return command
-
-
-def _wait_port(endpoint: str, timeout: float) -> bool:
-    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            s.settimeout(0.2)
-            if s.connect_ex((host, int(port))) == 0:
-                return True
-        time.sleep(0.1)
-    return False
 
 
 def _monitor_session(endpoint: str) -> zenoh.Session:
@@ -122,7 +109,7 @@ def main(args: argparse.Namespace) -> int:
             sup.start(
                 spec.name, _mimic_argv(spec.command), local_environment(spec, args.endpoint), restart=args.restart
             )
-            if spec.name == ROUTER_SERVICE and not _wait_port(args.endpoint, 15.0):
+            if spec.name == ROUTER_SERVICE and not wait_for_endpoint(args.endpoint, 15.0):
                 raise RuntimeError(f"router did not open {args.endpoint}")
         session_z = _monitor_session(args.endpoint)
         monitor = BusMonitor(session_z, keys, *_joint_limits())

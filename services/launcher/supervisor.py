@@ -17,6 +17,18 @@ log = logging.getLogger("mimic.up")
 _PR_SET_PDEATHSIG = 1
 
 
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of ``pid`` [MiB] from /proc (None when it is gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
 def stop_processes(
     *procs: subprocess.Popen | None, sig: int = signal.SIGINT, timeout: float = 10.0
 ) -> list[int | None]:

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from services.launcher.supervisor import stop_processes
+from services.launcher.supervisor import rss_mb, stop_processes
 from services.recorder.mcap_io import read_recording
-from shared.bus import bus_args, open_session
+from shared.bus import bus_args, free_port, open_session
 from shared.keys import Keys
 from shared.messages import HUMAN_BONES, Bone, Header, HumanFrame, Pose, ServiceStatus
 from shared.report import emit_json
@@ -42,26 +42,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rss-period", type=float, default=1.0, help="recorder RSS sampling period [s]")
     p.add_argument("--port", type=int, default=0, help="router port on 127.0.0.1 (0 = a free one)")
     p.add_argument("--session", default="recbench", help="session to publish into")
-
-
-def rss_mb(pid: int) -> float | None:
-    """Resident set size of ``pid`` [MiB] from /proc (None when gone)."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def make_frame(seq: int, rate: float) -> HumanFrame:
@@ -93,7 +73,7 @@ def run_bench(
     rate: float, duration: float, out: Path, port: int = 0, session: str = "recbench", rss_period: float = 1.0
 ) -> dict:
     """Router + recorder processes, publish, stop, count. Returns the report dict."""
-    endpoint = f"tcp/127.0.0.1:{port or _free_port()}"
+    endpoint = f"tcp/127.0.0.1:{port or free_port()}"
     cli = [sys.executable, "-m", "services.cli"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     keys = Keys(session)

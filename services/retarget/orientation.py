@@ -14,9 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from shared.rotations import cross3, matrix_to_quat, norm3, quat_to_matrix
-
-__all__ = ["matrix_to_quat", "quat_to_matrix"]
+from shared.rotations import cross3, norm3
 
 
 def angular_velocity(R_prev: np.ndarray, R: np.ndarray, dt: float) -> np.ndarray:
@@ -98,8 +96,9 @@ def calibration_orientations(
 
 def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Smallest rotation (3, 3) turning direction a (3,) onto direction b (3,)."""
-    a = np.asarray(a, dtype=float) / norm3(np.asarray(a, dtype=float))
-    b = np.asarray(b, dtype=float) / norm3(np.asarray(b, dtype=float))
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a, b = a / norm3(a), b / norm3(b)
     axis = cross3(a, b)
     s, c = norm3(axis), float(a @ b)
     if s < 1e-12:

@@ -28,6 +28,7 @@ import numpy as np
 from shared.messages import TARGET_NAMES, Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import RobotProfile, load_profile
+from shared.rotations import matrix_to_quat, quat_to_matrix
 
 from .calibration import Calibration, CalibrationError, anthropometric
 from .elbow import ArmGeometry, human_swivel
@@ -38,8 +39,6 @@ from .orientation import (
     angular_velocity,
     arm_alignment,
     calibration_orientations,
-    matrix_to_quat,
-    quat_to_matrix,
 )
 from .velocity import LowPassVelocity
 from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
@@ -160,8 +159,10 @@ class Retargeter:
             if self.config.elbow_placement == "swivel"
             else {}
         )
-        #: side -> swivel elbow placed for the current frame's wrist target
-        self._placed: dict[str, np.ndarray] = {}
+        #: target -> arm side ("left" / "right")
+        self.side_of = {t: t.split("_")[0] for t in TARGET_NAMES}
+        #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
+        self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_reject: tuple[str, str] | None = None
@@ -316,7 +317,7 @@ class Retargeter:
                 elbows[side] = arm.place(rest[f"{side}_wrist"], swivel)
         ref = calibration_orientations(self.robot, rest, elbows)
         for t in TARGET_NAMES:
-            side = t.split("_")[0]
+            side = self.side_of[t]
             if self.config.orientation_reference == "forearm" and t.endswith("wrist") and side in elbows:
                 sh = np.asarray(frame.bones[f"{side}_shoulder"].p, dtype=float)
                 h_el = cal.rest[f"{side}_elbow"]
@@ -327,33 +328,40 @@ class Retargeter:
             else:
                 self._rot_map[t] = OrientationMap(quat_to_matrix(cal.rest_q[t]), ref[t])
 
-    def _swivel_elbow(self, t: str, frame: HumanFrame, wrist: Target | None) -> np.ndarray | None:
-        """Swivel elbow target (3,) [m], or None when it cannot be placed (then eqs. 1-3 are used)."""
-        side = t.split("_")[0]
+    def _place_elbow(
+        self, side: str, frame: HumanFrame, wrist_p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Swivel elbow for this frame's wrist target ``wrist_p`` (3,) [m], not clamped, with the
+        operator's shoulder and elbow (3,) [m] it came from; None when it cannot be placed (no swivel
+        placement, incremental mode, or an invalid arm bone). Placed once per side and frame: the
+        forearm orientation of the wrist and the elbow target share it."""
+        placed = self._placed.get(side)
+        if placed is not None:
+            return placed
         arm = self.arms.get(side)
-        if arm is None or wrist is None or not wrist.valid or self.config.mode == "incremental":
+        if arm is None or self.config.mode == "incremental":
             return None
-        if side in self._placed:  # placed for this frame's wrist already (forearm orientation)
-            p = self._placed[side]
-        else:
-            bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
-            if any(b is None or not b.valid for b in bones):
-                return None
-            p = arm.place(wrist.p, human_swivel(*(np.asarray(b.p, dtype=float) for b in bones)))
-            self._placed[side] = p
-        if t.endswith("wrist"):  # forearm direction for ForearmOrientationMap: no clamping
+        bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
+        if any(b is None or not b.valid for b in bones):
+            return None
+        h_sh, h_el, h_wr = (np.asarray(b.p, dtype=float) for b in bones)
+        placed = (arm.place(wrist_p, human_swivel(h_sh, h_el, h_wr)), h_sh, h_el)
+        self._placed[side] = placed
+        return placed
+
+    def _elbow_in_box(self, t: str, p: np.ndarray) -> np.ndarray:
+        """A swivel elbow target (3,) [m] as published: kept in the workspace box in bounded mode."""
+        if self.config.mode != "bounded":
             return p
-        if self.config.mode == "bounded":
-            # Still kept in the box (one elbow in five on the real clips, up to 1.7 cm off the
-            # forearm length): without it `mimic eval` tracked slightly worse (elbow 0.94 -> 0.96 cm,
-            # wrist 0.068 -> 0.078 cm mean, hqp-nullspace on the 16 clips); the box's outer 5 %
-            # are near the joint stops.
-            ws = self.workspace
-            q = np.clip(p, ws.lower[t], ws.upper[t])
-            if np.any(np.abs(q - p) > 1e-9):
-                self.counts[f"clamped_{t}"] += 1
-            p = q
-        return p
+        # Still kept in the box (one elbow in five on the real clips, up to 1.7 cm off the
+        # forearm length): without it `mimic eval` tracked slightly worse (elbow 0.94 -> 0.96 cm,
+        # wrist 0.068 -> 0.078 cm mean, hqp-nullspace on the 16 clips); the box's outer 5 %
+        # are near the joint stops.
+        ws = self.workspace
+        q = np.clip(p, ws.lower[t], ws.upper[t])
+        if np.any(np.abs(q - p) > 1e-9):
+            self.counts[f"clamped_{t}"] += 1
+        return q
 
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
         use_rot = t.endswith("wrist") or self.config.elbow_rotation
@@ -368,12 +376,18 @@ class Retargeter:
                 pos_map.reanchor()
             p, R = self._held[t]
             return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
-        p = self._swivel_elbow(t, frame, done.get(t.replace("elbow", "wrist"))) if t.endswith("elbow") else None
+        side = self.side_of[t]
+        p = None
+        if t.endswith("elbow"):
+            wrist = done.get(f"{side}_wrist")
+            placed = self._place_elbow(side, frame, wrist.p) if wrist is not None and wrist.valid else None
+            if placed is not None:
+                p = self._elbow_in_box(t, placed[0])
         if p is None:
             p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
             if clamped.any():
                 self.counts[f"clamped_{t}"] += 1
-            arm = self.arms.get(t.split("_")[0])
+            arm = self.arms.get(side)
             if t.endswith("wrist") and arm is not None and self.config.mode != "incremental":
                 # Swivel elbows: keep the wrist within the arm's reach so the pair stays reachable.
                 q = arm.reachable(p)
@@ -383,10 +397,9 @@ class Retargeter:
         rot_map = self._rot_map[t]
         R = None
         if isinstance(rot_map, ForearmOrientationMap):
-            side = t.split("_")[0]
-            elbow = self._swivel_elbow(t, frame, Target(p, np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3)))
-            if elbow is not None:  # the swivel placement checked the operator's arm bones
-                h_sh, h_el = (np.asarray(frame.bones[f"{side}_{b}"].p, dtype=float) for b in ("shoulder", "elbow"))
+            placed = self._place_elbow(side, frame, p)
+            if placed is not None:
+                elbow, h_sh, h_el = placed
                 c = self.arms[side].centre
                 A = arm_alignment(h_el - h_sh, np.asarray(bone.p, dtype=float) - h_el, elbow - c, p - elbow)
                 R = rot_map.with_alignment(quat_to_matrix(bone.q), A)

@@ -16,8 +16,10 @@ import argparse
 import contextlib
 import itertools
 import json
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -33,16 +35,35 @@ from services.evaluation.soak import (  # noqa: E402
     Observer,
     StateSample,
     dropped_counts,
-    free_port,
     latency_windows,
 )
-from shared.bus import query  # noqa: E402
+from shared.bus import free_port, query  # noqa: E402
 from shared.robot.pinocchio_model import build_robot_model  # noqa: E402
 
 PIPELINE = ("retarget", "solver", "sim")
 STATUS_PERIOD = 0.2  # [s] every service's status period in these scenarios
 #: Measured q may lead the rate-limited servo target a little (PD tracking overshoot) [rad/s].
 VEL_TOL = 0.5
+
+
+def spawn_cli(*argv: str, output: bool = False) -> tuple[subprocess.Popen, list[str]]:
+    """Start ``python -m services.cli ARGV`` in the repo.
+
+    With ``output`` its merged stdout and stderr lines are collected into the returned list
+    (for failure messages and log checks); without, they are discarded.
+    """
+    lines: list[str] = []
+    sink = subprocess.PIPE if output else subprocess.DEVNULL
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", *argv],
+        cwd=REPO,
+        stdout=sink,
+        stderr=subprocess.STDOUT if output else subprocess.DEVNULL,
+        text=True,
+    )
+    if output:
+        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
+    return proc, lines
 
 
 def vmax_by_joint() -> dict[str, float]:

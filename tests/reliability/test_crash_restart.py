@@ -26,8 +26,9 @@ import numpy as np
 import pytest
 from faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
 
-from services.evaluation.soak import Observer, free_port
+from services.evaluation.soak import Observer
 from services.launcher.supervisor import stop_processes
+from shared.bus import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

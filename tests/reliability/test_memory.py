@@ -14,9 +14,9 @@ import tempfile
 
 import pytest
 
-from services.evaluation.soak import rss_mb
 from services.ingest.clip import load_clip
 from services.ingest.demo_motion import generate_demo_clips
+from services.launcher.supervisor import rss_mb
 from services.retarget.cli import add_arguments, config_from_args
 from services.retarget.retargeter import Retargeter
 from shared.messages import HumanFrame

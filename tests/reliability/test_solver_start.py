@@ -10,16 +10,15 @@ pose and stay there while no targets come.
 
 from __future__ import annotations
 
-import subprocess
-import sys
-import threading
+import signal
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from faults import spawn_cli
 
 from services.evaluation.soak import Observer
+from services.launcher.supervisor import stop_processes
 from shared.messages import Header, RobotState
 from shared.robot.pinocchio_model import build_robot_model
 
@@ -27,29 +26,15 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
 def test_solver_started_without_state_anchors_on_the_first_state(zenoh_endpoint):
-    repo = Path(__file__).resolve().parents[2]
     session = f"anchor{zenoh_endpoint.rsplit(':', 1)[1]}"
     robot = build_robot_model()
     q_robot = robot.clip(robot.q_rest + 0.3)
     common = ["--connect", zenoh_endpoint, "--session", session]
-    router = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "router", "--listen", zenoh_endpoint],
-        cwd=repo,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    router, _ = spawn_cli("router", "--listen", zenoh_endpoint)
     solver = obs = None
     try:
         time.sleep(0.8)
-        solver = subprocess.Popen(
-            [sys.executable, "-m", "services.cli", "solve", "--id", "main", "--startup-wait", "0.2", *common],
-            cwd=repo,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        out: list[str] = []
-        threading.Thread(target=lambda: out.extend(solver.stdout), daemon=True).start()
+        solver, out = spawn_cli("solve", "--id", "main", "--startup-wait", "0.2", *common, output=True)
         obs = Observer(zenoh_endpoint, session)
         obs.wait_alive(["solver/main"], timeout=60)
         obs.wait_until(lambda: len(obs.commands) > 20, 30, "commands from rest")
@@ -73,7 +58,4 @@ def test_solver_started_without_state_anchors_on_the_first_state(zenoh_endpoint)
     finally:
         if obs is not None:
             obs.close()
-        for p in (solver, router):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                p.wait(10)
+        stop_processes(solver, router, sig=signal.SIGTERM)

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import collections
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -20,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from faults import spawn_cli
 
 from services.launcher.supervisor import stop_processes
 from services.solver.core import SolverConfig, SolverCore
@@ -173,24 +172,11 @@ def test_real_solver_process_stays_safe_on_unsafe_targets(robot, zenoh_endpoint)
     session = f"unsafe{zenoh_endpoint.rsplit(':', 1)[1]}"
     keys = Keys(session)
     common = ["--connect", zenoh_endpoint, "--session", session, "--status-period", "0.2"]
-    router = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "router", "--listen", zenoh_endpoint],
-        cwd=REPO,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    router, _ = spawn_cli("router", "--listen", zenoh_endpoint)
     solver = None
     try:
         time.sleep(0.8)
-        solver = subprocess.Popen(
-            [sys.executable, "-m", "services.cli", "solve", "--algo", "hqp-nullspace", "--id", "main", *common],
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        out: list[str] = []
-        threading.Thread(target=lambda: out.extend(solver.stdout), daemon=True).start()
+        solver, out = spawn_cli("solve", "--algo", "hqp-nullspace", "--id", "main", *common, output=True)
         cmds: list[JointCommand] = []
         status: dict[str, ServiceStatus] = {}
         alive = threading.Event()

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from services.retarget.calibration import from_recording
-from services.retarget.orientation import quat_to_matrix
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from shared.messages import TARGET_NAMES
+from shared.rotations import quat_to_matrix
 
 #: Seed 000's eqs. (1)-(4) as written (the product defaults are swivel elbows and forearm orientations).
 PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
