@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from services.evaluation.mink_peer import MINK, MinkPeer
 from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
@@ -38,10 +39,8 @@ log = logging.getLogger("mimic.eval")
 WRISTS = ("left_wrist", "right_wrist")
 ELBOWS = ("left_elbow", "right_elbow")
 REFERENCE_ALGO = "hqp-nullspace"
-#: Retarget settings of the evaluation beyond the service defaults (swivel elbows, forearm-relative
-#: orientations): raw finite-difference velocities, since the 50 ms low-pass lags the extrapolated
-#: reference between 30 fps frames (HQP wrist error 0.28 -> 0.17 cm mean on byebye_normal).
-EVAL_RETARGET: dict = {"velocity_tau": 0.0}
+#: Sim ticks between two clearance measurements (mj_geomDistance over every pair costs ~ms).
+CLEARANCE_EVERY = 10
 
 
 @dataclass
@@ -55,6 +54,9 @@ class Trace:
         ref_ok: target -> (K,) reference valid (not held).
         q, qd: (K, n) commanded joints [rad], [rad/s]. solve_ms: (K,). status: (K,) str.
         res1: (K,) level-1 residual.
+        collide: (K,) bool, an arm in penetration (sim contacts; kinematic clearance < 0 without sim,
+            on the clearance ticks only). clearance: (K,) smallest arm clearance [m] (NaN between
+            clearance ticks). dt: control period [s].
     """
 
     algo: str
@@ -72,6 +74,9 @@ class Trace:
     res1: np.ndarray
     sim_p: dict[str, np.ndarray] = field(default_factory=dict)
     sim_R: dict[str, np.ndarray] = field(default_factory=dict)
+    collide: np.ndarray | None = None
+    clearance: np.ndarray | None = None
+    dt: float = 0.002
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -94,6 +99,7 @@ def run_algorithm(
     settle: float = 0.5,
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
+    collisions: bool = True,
 ) -> Trace:
     """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
 
@@ -104,21 +110,30 @@ def run_algorithm(
         solver: further :class:`SolverConfig` fields (e.g. ``wrist_orientation_level``).
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
+        collisions: record self-collisions and clearances (:mod:`.collisions`).
     """
-    core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate, solver_id="eval", **(solver or {})))
-    if algo == "wqp" and wqp_weights is not None:
-        core.algorithm = WeightedQp(make_backend(qp), level_weights=wqp_weights, eps=core.config.damping)
-    core.reset(robot.q_rest)
+    if algo == MINK:
+        core = MinkPeer(robot, rate)
+    else:
+        core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate, solver_id="eval", **(solver or {})))
+        if algo == "wqp" and wqp_weights is not None:
+            core.algorithm = WeightedQp(make_backend(qp), level_weights=wqp_weights, eps=core.config.damping)
+        core.reset(robot.q_rest)
     simcore = None
     if sim:
         from services.sim.sim_core import SimConfig, SimCore
 
         simcore = SimCore(robot.profile, SimConfig(solver_id="eval"))
+    coll = None
+    if collisions:
+        from services.evaluation.collisions import SelfCollision
+
+        coll = SelfCollision(robot.profile, simcore.joint_names if simcore is not None else robot.joint_names)
     dt = 1.0 / rate
     stamps = np.array([tt.hdr.stamp for tt in targets]) + settle
     t_end = stamps[-1] + 1.0 / 30.0
     n_ticks = int(np.ceil(t_end / dt))
-    rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
+    rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1", "collide", "clear")}
     ref_p = {n: [] for n in TARGET_NAMES}
     ref_R = {n: [] for n in WRISTS}
     ref_ok = {n: [] for n in TARGET_NAMES}
@@ -167,6 +182,14 @@ def run_algorithm(
         rec["ms"].append(cmd.solve_ms)
         rec["status"].append(cmd.status)
         rec["res1"].append(cmd.residuals[0] if cmd.residuals else np.nan)
+        if coll is not None:
+            k = len(rec["t"]) - 1
+            c = np.nan
+            if k % CLEARANCE_EVERY == 0:
+                # the sim's reached joints when it runs (what a camera would see), else the command
+                c = coll.clearance(simcore.q if simcore is not None else cmd.q)
+            rec["clear"].append(c)
+            rec["collide"].append(coll.penetrating(simcore.robot.data) if simcore is not None else bool(c < 0))
 
     def arr(d):
         return {k: np.asarray(v) for k, v in d.items() if len(v)}
@@ -187,6 +210,9 @@ def run_algorithm(
         res1=np.asarray(rec["res1"]),
         sim_p=arr(sim_p),
         sim_R=arr(sim_R),
+        collide=np.asarray(rec["collide"], dtype=bool) if coll is not None else None,
+        clearance=np.asarray(rec["clear"], dtype=float) if coll is not None else None,
+        dt=dt,
     )
 
 
@@ -198,16 +224,27 @@ def _at_rest(tt: TaskTargets) -> TaskTargets:
 
 
 def load_and_retarget(
-    path: Path, robot: RobotModel, mode: str = "bounded", retarget: dict | None = None
+    path: Path,
+    robot: RobotModel,
+    mode: str | None = None,
+    retarget: dict | None = None,
+    skeleton_map: str | Path | None = None,
 ) -> tuple[Clip, list[TaskTargets]]:
     """Load a clip and retarget it with a freshly calibrated retargeter (as the live service does).
 
     Args:
-        retarget: further :class:`RetargetConfig` fields (default: :data:`EVAL_RETARGET`).
+        mode: mapping mode (None: the service default, ``RetargetConfig().mode``).
+        retarget: further :class:`RetargetConfig` fields (default: none, the service's own settings).
+        skeleton_map: BVH skeleton map / C3D marker map file, as ``mimic publish --skeleton-map``.
+
+    Raises:
+        ClipError (incl. SkeletonMapError): unreadable clip or a rig no map fits; one-line text.
     """
-    clip = load_clip(path)
-    fields = dict(EVAL_RETARGET if retarget is None else retarget)
-    cfg = RetargetConfig(mode=mode, robot=str(robot.profile.source), **fields)
+    clip = load_clip(path, skeleton_map=skeleton_map)
+    fields = dict(retarget or {})
+    if mode is not None:
+        fields["mode"] = mode
+    cfg = RetargetConfig(robot=str(robot.profile.source), **fields)
     retargeter = Retargeter(cfg, robot=_arms_model(robot))
     t0 = time.perf_counter()
     targets = clip_targets(clip, retargeter)

@@ -28,7 +28,13 @@ def _shrink_arg(text: str) -> Shrink:
 def add_retarget_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``retarget`` and ``retarget-plot``."""
     g = p.add_argument_group("retargeting")
-    g.add_argument("--mapping", choices=MODES, default="bounded", help="position mapping mode (default bounded)")
+    g.add_argument(
+        "--mapping",
+        choices=MODES,
+        default=MODES[0],
+        help=f"position mapping mode (default {MODES[0]}: per direction from the shoulder onto the robot's "
+        "sampled reach; bounded/paper: eqs. 1-3 per axis)",
+    )
     g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
     g.add_argument("--calibration", type=Path, default=None, help="operator calibration file (JSON or TOML)")
     g.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help="Monte Carlo workspace samples")

@@ -29,7 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MODES: tuple[str, ...] = ("bounded", "paper", "incremental")
+#: Position mapping modes (first = default): "reach" is :mod:`.reach` (per direction from the shoulder onto
+#: the robot's sampled reachable set); "bounded", "paper" and "incremental" are the per-axis maps here.
+MODES: tuple[str, ...] = ("reach", "bounded", "paper", "incremental")
 #: Elbow target placement (first = default): see :class:`services.retarget.retargeter.RetargetConfig`.
 ELBOW_PLACEMENTS: tuple[str, ...] = ("swivel", "mapped")
 #: Eq. (4) robot reference orientation (first = default).
