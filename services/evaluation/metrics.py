@@ -144,6 +144,7 @@ def trace_metrics(
         mask = per_side["left"] & per_side["right"]
         m["reachable_fraction"] = report.fraction()
         m["pair_reachable_fraction"] = report.fraction(pair=True)
+        m["speed_feasible_fraction"] = report.speed_feasible_fraction()
         m["stuck_s"] = stuck_seconds(trace, per_side)
     if reachable is not None or report is not None:
         m["wrist_err_cm_reachable"] = _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, WRISTS, mask))

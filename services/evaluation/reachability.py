@@ -64,7 +64,10 @@ class ArmIk:
         if elbow is not None:
             goals.append((self.fids["elbow"], np.asarray(elbow, dtype=float)))
         best = (np.inf, self.robot.q_rest)
-        starts = ([q0] if q0 is not None else []) + list(self.seeds)
+        # a pair is checked from the warm start and the rest pose only: it is nearly determined by the
+        # wrist (one swivel), and failing pairs would otherwise cost every seed on every frame
+        seeds = self.seeds[:1] if elbow is not None else self.seeds
+        starts = ([q0] if q0 is not None else []) + list(seeds)
         for q in starts:
             res, q = self._dls(q.copy(), goals, tol)
             if res < best[0]:
@@ -101,11 +104,17 @@ class ReachabilityReport:
 
     Attributes:
         seq: (F,) frame seq. wrist_res, pair_res: side -> (F,) residual [m] (NaN: target invalid).
+        speed: side -> (F,) fastest shoulder/elbow joint speed [rad/s] between consecutive wrist + elbow
+            IK solutions (each warm-started from the previous: the nearest posture), NaN where unknown.
+            Above the joint speed cap a target is reachable in place but not in time.
+        vmax: the arm joints' speed cap [rad/s].
     """
 
     seq: np.ndarray
     wrist_res: dict[str, np.ndarray]
     pair_res: dict[str, np.ndarray]
+    speed: dict[str, np.ndarray] = field(default_factory=dict)
+    vmax: float = np.inf
     tol: float = IK_TOL
     pair_tol: float = PAIR_TOL
 
@@ -120,6 +129,11 @@ class ReachabilityReport:
         vals = np.concatenate([r[np.isfinite(r)] for r in src.values()])
         return float(np.mean(vals <= tol)) if vals.size else 1.0
 
+    def speed_feasible_fraction(self) -> float | None:
+        """Share of frames (both arms) whose IK posture change stays within the joint speed cap."""
+        vals = np.concatenate([v[np.isfinite(v)] for v in self.speed.values()]) if self.speed else np.zeros(0)
+        return float(np.mean(vals <= self.vmax * (1 + 1e-6))) if vals.size else None
+
 
 def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = True) -> ReachabilityReport:
     """IK-check every published wrist target (and wrist + elbow pair) of a stream.
@@ -132,6 +146,8 @@ def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = Tr
     F = len(targets)
     wres = {s: np.full(F, np.nan) for s in SIDES}
     pres = {s: np.full(F, np.nan) for s in SIDES}
+    speed = {s: np.full(F, np.nan) for s in SIDES}
+    last = {s: None for s in SIDES}  # (stamp, q) of the previous pair solution
     warm = {s: None for s in SIDES}
     warm_pair = {s: None for s in SIDES}
     for k, tt in enumerate(targets):
@@ -147,4 +163,10 @@ def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = Tr
                 res, q = iks[s].solve(w.p, e.p, q0=warm_pair[s] if warm_pair[s] is not None else warm[s], tol=PAIR_TOL)
                 pres[s][k] = res
                 warm_pair[s] = q
-    return ReachabilityReport(np.array([tt.hdr.seq for tt in targets]), wres, pres)
+                # shoulder and elbow joints only: the wrist joints are free in this IK
+                moved = [i for i in iks[s].arm if "wrist" not in robot.joint_names[i]]
+                if last[s] is not None and tt.hdr.stamp > last[s][0]:
+                    speed[s][k] = np.abs(q[moved] - last[s][1][moved]).max() / (tt.hdr.stamp - last[s][0])
+                last[s] = (tt.hdr.stamp, q.copy())
+    vmax = float(robot.vmax.min())
+    return ReachabilityReport(np.array([tt.hdr.seq for tt in targets]), wres, pres, speed, vmax)
