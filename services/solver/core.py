@@ -34,11 +34,10 @@ from shared.kinematics import (
 )
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
+from shared.targets import ELBOWS, WRISTS
 
-WRISTS = ("left_wrist", "right_wrist")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
-ELBOWS = ("left_elbow", "right_elbow")
 
 
 @dataclass

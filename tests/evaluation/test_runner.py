@@ -24,7 +24,7 @@ def robot():
 def joint_trajectory(robot, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Smooth reachable motion around the rest pose: q (n,) [rad], qd (n,) [rad/s] at t [s]."""
     n = robot.nq
-    amp = np.array([0.0 if "waist" in j else 0.25 for j in robot.joint_names])
+    amp = np.array([0.0 if j in robot.profile.waist else 0.25 for j in robot.joint_names])
     w = 2 * np.pi * 0.4
     phase = np.linspace(0.0, np.pi, n)
     s = np.sin(w * t + phase) - np.sin(phase)  # starts at the rest pose
