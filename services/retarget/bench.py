@@ -18,9 +18,9 @@ import numpy as np
 
 from services.retarget.mapping import MODES
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from shared.messages import TARGET_NAMES
 from shared.paths import mocap_dir
 from shared.report import emit_json
+from shared.targets import TARGET_NAMES
 
 DEFAULT_DIR = mocap_dir()
 

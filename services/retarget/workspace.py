@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from shared.messages import TARGET_NAMES
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger(__name__)
 

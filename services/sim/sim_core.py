@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from shared.messages import TARGET_NAMES, Header, JointCommand, Pose, RobotState
+from shared.messages import Header, JointCommand, Pose, RobotState
 from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger("mimic.sim")
 

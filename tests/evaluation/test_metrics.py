@@ -16,8 +16,8 @@ from services.evaluation.metrics import (
     trace_metrics,
 )
 from services.evaluation.runner import ELBOWS, WRISTS, Trace
-from shared.messages import TARGET_NAMES
 from shared.robot.pinocchio_model import build_robot_model
+from shared.targets import TARGET_NAMES
 
 K = 200
 

@@ -8,9 +8,10 @@ import pytest
 
 from services.evaluation.metrics import reachable_mask, trace_metrics
 from services.evaluation.runner import run_algorithm
-from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
+from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 RATE = 100.0  # target stream [Hz]
 DURATION = 1.5  # [s]

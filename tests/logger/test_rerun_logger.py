@@ -16,7 +16,6 @@ from services.logger.rrd_summary import scalar_rows, summarize
 from services.sim.sim_core import SimConfig, SimCore
 from shared.messages import (
     HUMAN_BONES,
-    TARGET_NAMES,
     Bone,
     Header,
     HumanFrame,
@@ -26,6 +25,7 @@ from shared.messages import (
     Target,
     TaskTargets,
 )
+from shared.targets import TARGET_NAMES
 
 IDENT = np.array([1.0, 0.0, 0.0, 0.0])
 N = 40

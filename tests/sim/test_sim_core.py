@@ -7,8 +7,9 @@ import pytest
 
 from services.sim.sim_core import SimConfig, SimCore
 from services.sim.tracking import measure_tracking
-from shared.messages import TARGET_NAMES, Header, JointCommand
+from shared.messages import Header, JointCommand
 from shared.robot.pinocchio_model import build_robot_model
+from shared.targets import TARGET_NAMES
 
 
 @pytest.fixture(scope="module")
