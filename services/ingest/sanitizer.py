@@ -14,19 +14,16 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 
-import msgpack
 import numpy as np
 
 from shared.messages import (
     HUMAN_BONES,
-    MAX_ITEMS,
-    MAX_PAYLOAD_BYTES,
-    SCHEMA_VERSION,
     Bone,
     Header,
     HumanFrame,
     MessageError,
     Pose,
+    unpack_message,
 )
 
 _IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -65,18 +62,7 @@ def decode_lenient(payload: bytes) -> tuple[HumanFrame, list[Issue]]:
     Raises:
         MessageError: unreadable payload (not msgpack, wrong version/type, no header or root).
     """
-    if len(payload) > MAX_PAYLOAD_BYTES:
-        raise MessageError("size", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-    try:
-        d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-    except Exception as exc:
-        raise MessageError("msgpack", f"not valid msgpack ({type(exc).__name__})") from None
-    if not isinstance(d, dict):
-        raise MessageError("type", "payload is not a map")
-    if d.get("v") != SCHEMA_VERSION:
-        raise MessageError("version", f"schema version {d.get('v')!r}, this build speaks {SCHEMA_VERSION}")
-    if d.get("t") != HumanFrame.TYPE:
-        raise MessageError("type", f"message type {d.get('t')!r}, expected 'HumanFrame'")
+    d = unpack_message(payload, HumanFrame.TYPE)  # the bus limits, version and type: as the strict decoder
     hdr = d.get("hdr")
     if not (isinstance(hdr, (list, tuple)) and len(hdr) == 3):
         raise MessageError("missing", "hdr must be [seq, stamp, t0]")

@@ -110,6 +110,7 @@ class StackMonitor:
                 "state": st.state,
                 "last_error": st.last_error,
                 "counts": dict(c),
+                "outcomes": dict(st.outcomes),
             }
 
         def stats(v: list[float]) -> dict:

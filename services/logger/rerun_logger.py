@@ -28,13 +28,11 @@ import time
 from collections import OrderedDict
 from collections.abc import Iterable
 
-import msgpack
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from shared.messages import (
-    MAX_ITEMS,
     MESSAGE_TYPES,
     TARGET_NAMES,
     HumanFrame,
@@ -43,6 +41,7 @@ from shared.messages import (
     RobotState,
     ServiceStatus,
     TaskTargets,
+    peek,
     peek_type,
 )
 from shared.rotations import quat_xyzw
@@ -174,7 +173,7 @@ class RerunLogger:
         if kind not in ("HumanFrame", "RobotState", "JointCommand"):
             return False
         try:
-            d = msgpack.unpackb(payload, raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
+            d = peek(payload)
             seq, stamp = int(d["hdr"][0]), float(d["hdr"][1])
             sid = str(d.get("id", ""))
         except Exception:

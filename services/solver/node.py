@@ -119,8 +119,7 @@ def run(args: argparse.Namespace) -> int:
             svc.publish(pub, cmd, stream="commands")
             ticks_ms.append(cmd.solve_ms)
             svc.status.state = {"init": "holding", "held": "holding", "failed": "degraded"}.get(cmd.status, "ok")
-            if cmd.status != "ok":
-                svc.status.received(f"status_{cmd.status}")
+            svc.status.outcome(cmd.status)
             if len(ticks_ms) >= STATS_WINDOW:
                 arr = np.asarray(ticks_ms)
                 svc.status.extra.update(
