@@ -1,4 +1,4 @@
-"""``mimic record-bench``: does the recorder lose messages at rate R for D seconds?
+"""``mimic bench recorder``: does the recorder lose messages at rate R for D seconds?
 
 Starts a router and a ``mimic record`` process on loopback, publishes
 ``rate * duration`` HumanFrames (seq 0..N-1) at ``rate`` Hz against absolute
