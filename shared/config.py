@@ -11,6 +11,9 @@ keywords and, in addition:
 
 * ``flag``: the flag name (default ``--field-name``; booleans that default to True
   become ``--no-field-name``);
+* ``dest``: the attribute of the parsed namespace (default the field name; needed when the
+  field name is taken, e.g. ``mode`` by the bus flags): pass the same overrides to
+  :func:`config_from_args`;
 * ``type``: a parser for the text (e.g. a class's ``parse``).
 
 Example::
@@ -98,25 +101,33 @@ def add_dataclass_arguments(
         tp = _base_type(hints[f.name])
         text = spec.pop("help", docs.get(f.name, "")).replace("%", "%%")  # argparse formats help with %
         dashed = f.name.replace("_", "-")
+        dest = spec.pop("dest", f.name)
         if tp is bool:
             flag = spec.pop("flag", f"--no-{dashed}" if default else f"--{dashed}")
             action = "store_false" if default else "store_true"
-            parser.add_argument(flag, dest=f.name, action=action, default=default, help=text, **spec)
+            parser.add_argument(flag, dest=dest, action=action, default=default, help=text, **spec)
             continue
         flag = spec.pop("flag", f"--{dashed}")
         spec.setdefault("type", tp if tp in (int, float, str) else None)
         if spec["type"] is None:
             raise TypeError(f"{cls.__name__}.{f.name}: give a 'type' parser for {tp!r} in overrides")
         shown = spec.pop("shown_default", default)
-        parser.add_argument(flag, dest=f.name, default=default, help=f"{text} (default: {shown})", **spec)
+        parser.add_argument(flag, dest=dest, default=default, help=f"{text} (default: {shown})", **spec)
 
 
-def config_from_args(cls: type, args: argparse.Namespace, **values: Any):
+def config_from_args(
+    cls: type, args: argparse.Namespace, overrides: dict[str, dict[str, Any]] | None = None, **values: Any
+):
     """``cls`` from the parsed flags of its fields (absent ones keep their default) and ``values``.
+
+    Args:
+        overrides: the ones given to :func:`add_dataclass_arguments` (for their ``dest``).
 
     Raises:
         ValueError: from ``cls.__post_init__`` when a value is invalid (a one-line message).
     """
-    kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if f.init and hasattr(args, f.name)}
+    fields = [f for f in dataclasses.fields(cls) if f.init]
+    dests = {f.name: (overrides or {}).get(f.name, {}).get("dest", f.name) for f in fields}
+    kw = {name: getattr(args, dest) for name, dest in dests.items() if hasattr(args, dest)}
     kw.update(values)
     return cls(**kw)

@@ -31,7 +31,7 @@ def _shrink_arg(text: str) -> Shrink:
 #: Flag names that differ from the RetargetConfig field names, choices and parsers.
 FLAGS = {
     # --mode is the Zenoh mode shared by every service.
-    "mode": {"flag": "--mapping", "choices": MODES},
+    "mode": {"flag": "--mapping", "dest": "mapping", "choices": MODES},
     "samples": {"help": "Monte Carlo workspace samples (paper: 12 000)"},
     "seed": {"help": "workspace sampling seed"},
     "shrink": {
@@ -69,7 +69,7 @@ def config_from_args(args: argparse.Namespace):
     """RetargetConfig from parsed options (validated by RetargetConfig)."""
     from .retargeter import RetargetConfig
 
-    return shared_config.config_from_args(RetargetConfig, args)
+    return shared_config.config_from_args(RetargetConfig, args, FLAGS)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
