@@ -124,4 +124,6 @@ def run(args: argparse.Namespace) -> int:
                 # Far behind (machine stalled): skip the missed ticks instead of bursting.
                 overruns += 1
                 next_t = t + period
+        # The last status (published on exit) carries the final counts, however few ticks ran.
+        svc.status.extra.update({k: float(v) for k, v in core.counts.items()})
     return 0

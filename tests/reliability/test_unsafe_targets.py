@@ -165,7 +165,7 @@ def test_infeasible_commands_carry_a_reason(robot):
 def test_real_solver_process_stays_safe_on_unsafe_targets(robot, local_stack):
     """The same cases published over Zenoh to a real ``mimic solve`` process (500 Hz)."""
     keys = local_stack.keys
-    local_stack.start_all(["solver"])  # the compose command: hqp-nullspace, id main
+    local_stack.start_router()
     cmds: list[JointCommand] = []
     status: dict[str, ServiceStatus] = {}
     lock = threading.Lock()
@@ -183,6 +183,8 @@ def test_real_solver_process_stays_safe_on_unsafe_targets(robot, local_stack):
             lambda s: status.__setitem__("solver", ServiceStatus.decode(s.payload.to_bytes())),
         ),
     ]
+    # Subscribed before the solver starts: every command it publishes is counted here.
+    local_stack.start_all(["solver"])  # the compose command: hqp-nullspace, id main
     pub = z.declare_publisher(keys.targets, express=True)
     cases = unsafe_cases(robot)
     marks: list[tuple[str, int]] = []  # (case, index of the first command after it started)
