@@ -109,10 +109,11 @@ def main(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         code = 1
     finally:
-        summary = monitor.summary() if monitor else {}
+        codes = stack.stop(last=STOP_LAST)
+        summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
             monitor.close()
-        codes = stack.close(last=STOP_LAST)
+        stack.close()
         summary["exit_codes"] = codes
         summary["session"] = session
         rrd = run_dir / f"{session}.rrd"

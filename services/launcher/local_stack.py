@@ -226,19 +226,28 @@ class LocalStack:
         text = self._log.getvalue() if self._log is not None else ""
         return text if tail is None else text[-tail:]
 
+    def stop(self, last: Iterable[str] = ("logger",), timeout: float = 8.0) -> dict[str, int | None]:
+        """Stop every child (reverse start order, ``last`` and the router at the end); exit codes by name.
+
+        The stack's session (:attr:`bus`) stays open, so observers keep what the services said
+        while stopping (their last status); :meth:`close` closes it.
+        """
+        tail = [*last, ROUTER_SERVICE]
+        order = [n for n in reversed(self.sup.children) if n not in tail]
+        order += [n for n in tail if n in self.sup.children]
+        codes = {n: self.sup.stop(n, timeout) for n in order}
+        forget_state(self.spec.values(), self.cwd)  # the stack's state lives as long as the stack
+        return codes
+
     def close(self, last: Iterable[str] = ("logger",), timeout: float = 8.0) -> dict[str, int | None]:
-        """Stop every child (reverse start order, ``last`` and the router at the end); exit codes by name."""
+        """:meth:`stop`, then close the stack's own session; exit codes by name."""
+        codes = self.stop(last, timeout)
         if self._alive_sub is not None:
             self._alive_sub.undeclare()
             self._alive_sub = None
         if self._z is not None:
             self._z.close()
             self._z = None
-        tail = [*last, ROUTER_SERVICE]
-        order = [n for n in reversed(self.sup.children) if n not in tail]
-        order += [n for n in tail if n in self.sup.children]
-        codes = {n: self.sup.stop(n, timeout) for n in order}
-        forget_state(self.spec.values(), self.cwd)  # the stack's state lives as long as the stack
         return codes
 
     def __enter__(self) -> LocalStack:
