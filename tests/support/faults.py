@@ -132,7 +132,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     res["new_frames_during_outage"] = sum(1 for s in after if s.t0 > t_kill_ns)
 
     # Restart: the same command as a new process.
-    log_mark = len(stack.log.getvalue())
+    log_mark = len(stack.output(tail=None))
     t_restart = stack.start(victim)
     t_alive = obs.wait_until(
         lambda: any(t >= t_restart and k == "PUT" and n == name for t, k, n in obs.alive_events), 60, f"{name} back"
@@ -144,7 +144,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     )
     if victim == "retarget":
         # The operator is moving now: the restarted retarget must keep the session's calibration.
-        res["retarget_calibration_restored"] = "calibration restored from" in stack.log.getvalue()[log_mark:]
+        res["retarget_calibration_restored"] = "calibration restored from" in stack.output(tail=None)[log_mark:]
     res["startup_s"] = t_alive - t_restart  # process start until its liveliness token
     res["resume_after_alive_s"] = t_resume - t_alive  # token until a new frame reached the robot state
     res["resume_after_restart_s"] = t_resume - t_restart
@@ -162,7 +162,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
             new = [c.q for c in obs.commands if c.t >= t_alive and c.solver_id == "main"]
             steps = [float(np.max(np.abs(b - a))) for a, b in itertools.pairwise(new)]
             res["new_solver_max_cmd_step_rad"] = max(steps, default=None)
-            new_log = stack.log.getvalue()[log_mark:]
+            new_log = stack.output(tail=None)[log_mark:]
             res["new_solver_started_from_rest"] = "starting from the rest pose" in new_log
             res["new_solver_reanchored"] = "re-initialised from the first robot state" in new_log
     vmax = np.full(states[0].q.shape, max(vmax_by_joint().values())) if states else np.zeros(0)
