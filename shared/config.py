@@ -51,7 +51,8 @@ def attribute_docs(cls: type) -> dict[str, str]:
     for i, (_start, end, name) in enumerate(marks):
         stop = marks[i + 1][0] if i + 1 < len(marks) else len(text)
         entry = text[end:stop].strip()
-        first = re.split(r"(?<=[.;])\s", entry, maxsplit=1)[0].rstrip(".;")
+        # First sentence: a period before a capital letter ("eqs. 1-3" stays whole).
+        first = re.split(r"(?<=\.)\s+(?=[A-Z])", entry, maxsplit=1)[0].rstrip(".")
         out.setdefault(name, first)
     return out
 
@@ -99,12 +100,15 @@ def add_dataclass_arguments(
         spec = {**f.metadata.get("cli", {}), **(overrides or {}).get(f.name, {})}
         default = _default(f)
         tp = _base_type(hints[f.name])
-        text = spec.pop("help", docs.get(f.name, "")).replace("%", "%%")  # argparse formats help with %
+        custom_help = "help" in spec
+        # argparse formats help with %; reST literals read badly in a terminal.
+        text = spec.pop("help", docs.get(f.name, "")).replace("%", "%%").replace("``", "")
         dashed = f.name.replace("_", "-")
         dest = spec.pop("dest", f.name)
         if tp is bool:
             flag = spec.pop("flag", f"--no-{dashed}" if default else f"--{dashed}")
             action = "store_false" if default else "store_true"
+            text = f"turn off: {text}" if default and not custom_help else text
             parser.add_argument(flag, dest=dest, action=action, default=default, help=text, **spec)
             continue
         flag = spec.pop("flag", f"--{dashed}")

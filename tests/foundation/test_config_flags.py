@@ -48,7 +48,7 @@ def _parser(add) -> argparse.ArgumentParser:
 
 def test_flags_come_from_the_fields():
     assert attribute_docs(Demo) == {
-        "rate": "control rate [Hz]",
+        "rate": "control rate [Hz]; more text",
         "level": "1 or 2",
         "on": "switch it on",
         "off": "a default-on switch",
@@ -57,7 +57,7 @@ def test_flags_come_from_the_fields():
     assert config_from_args(Demo, p.parse_args([])) == Demo()
     got = config_from_args(Demo, p.parse_args(["--rate", "250", "--level", "2", "--on", "--no-off"]))
     assert got == Demo(250.0, 2, True, False)
-    assert "control rate [Hz] (default: 500.0)" in " ".join(p.format_help().split())
+    assert "control rate [Hz]; more text (default: 500.0)" in " ".join(p.format_help().split())
     with pytest.raises(ValueError, match="level must be 1 or 2, got 3"):
         config_from_args(Demo, p.parse_args(["--level", "3"]))
 
