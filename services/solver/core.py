@@ -108,9 +108,9 @@ class SolverConfig:
         from services.solver.qp import QP_BACKENDS
 
         if self.algo not in ALGORITHMS:
-            raise ValueError(f"solver algorithm {self.algo!r}; known: {sorted(ALGORITHMS)}")
+            raise ValueError(f"unknown algorithm {self.algo!r}; known: {sorted(ALGORITHMS)}")
         if self.qp not in QP_BACKENDS:
-            raise ValueError(f"QP backend {self.qp!r}; known: {sorted(QP_BACKENDS)}")
+            raise ValueError(f"unknown QP backend {self.qp!r}; known: {sorted(QP_BACKENDS)}")
         if not 1.0 <= self.rate <= 10000.0:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
         if self.wrist_orientation_level not in (1, 2, 3):
