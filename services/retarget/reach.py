@@ -33,9 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from services.retarget.workspace import Workspace, cache_dir
 from shared.rotations import norm3
-
-from .workspace import Workspace, cache_dir
 
 log = logging.getLogger(__name__)
 
