@@ -42,3 +42,11 @@ def c3d_dir() -> Path:
 def zenoh_endpoint() -> str:
     """A fresh loopback endpoint for a router started by the test."""
     return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture(scope="session")
+def mocap_sources(mocap_dir):
+    """SOURCES.md of the real mocap data, parsed (the facts tests check clips against)."""
+    from tests.support.mocap_sources import MocapSources
+
+    return MocapSources.read(mocap_dir)
