@@ -35,5 +35,6 @@ class MocapSources:
 
     def pelvis_tilt_over(self) -> tuple[float, set[str]]:
         """(angle [deg], clips) of "a bow tilts the pelvis forward by more than <angle> deg in <clips>"."""
-        m = re.search(r"tilts the pelvis forward by more than (\d+) deg in\s+((?:`[^`]+`[,\s]*(?:and\s+)?)+)", self.text)
+        clips = r"((?:`[^`]+`[,\s]*(?:and\s+)?)+)"
+        m = re.search(r"tilts the pelvis forward by more than (\d+) deg in\s+" + clips, self.text)
         return float(m.group(1)), {f"{n}.bvh" for n in re.findall(r"`([^`]+)`", m.group(2))}
