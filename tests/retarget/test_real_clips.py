@@ -14,6 +14,7 @@ from shared.rotations import quat_to_matrix
 #: Seed 000's eqs. (1)-(4) as written (the product defaults are swivel elbows and forearm orientations).
 PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
 
+
 @pytest.fixture(scope="module")
 def clips(bvh_clips):
     return {p.stem: load_clip(p) for p in bvh_clips}
