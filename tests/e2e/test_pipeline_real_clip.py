@@ -13,6 +13,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 CLIP = "dataset-1_bye_normal_001.bvh"
+#: Mean wrist error [cm] of the simulated robot on CLIP through the whole stack (see the test).
+WRIST_MEAN_CM = 0.17
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
@@ -40,7 +42,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endpoint):
+def test_real_clip_flows_through_the_whole_stack(bvh_clips, mocap_sources, tmp_path, zenoh_endpoint):
     clip = next(c for c in bvh_clips if c.name == CLIP)
     summary_path = tmp_path / "summary.json"
     argv = [
@@ -78,7 +80,7 @@ def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endp
     s = json.loads(summary_path.read_text())
 
     frames = s["services"]["publish/main"]["out"]
-    assert frames == 111  # the clip's frame count (SOURCES.md), all published
+    assert frames == mocap_sources.frames(CLIP)  # every frame of the clip published
     # Every published frame came through retarget, and reached the simulated robot.
     assert s["services"]["retarget/main"]["in"] == frames
     assert s["services"]["retarget/main"]["out"] == frames
@@ -92,7 +94,9 @@ def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endp
     assert reached >= 0.9 * frames, s["latency_ms"]
     assert frames - reached <= skipped
     # The robot follows: wrist error measured on the simulated robot (last state of each frame).
-    assert s["wrist_err_cm"]["mean"] < 5.0, s["wrist_err_cm"]
+    # Measured WRIST_MEAN_CM cm on an idle machine; a loaded one (the solver missing its 2 ms ticks)
+    # misses the frame count above first.
+    assert s["wrist_err_cm"]["mean"] < 2 * WRIST_MEAN_CM, s["wrist_err_cm"]
     # No joint ever commanded past its limits; the simulated joints stay within them
     # up to the servo's compliance.
     assert s["max_command_limit_excess_rad"] <= 1e-9
