@@ -13,7 +13,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 CLIP = "dataset-1_bye_normal_001.bvh"
-#: Mean wrist error [cm] of the simulated robot on CLIP through the whole stack (see the test).
+#: Mean wrist error [cm] of the simulated robot on CLIP through the whole stack, unloaded machine:
+#: the issue 11 review's figure (the old bound, 5.0 cm, was ~30x it).
 WRIST_MEAN_CM = 0.17
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -94,8 +95,9 @@ def test_real_clip_flows_through_the_whole_stack(bvh_clips, mocap_sources, tmp_p
     assert reached >= 0.9 * frames, s["latency_ms"]
     assert frames - reached <= skipped
     # The robot follows: wrist error measured on the simulated robot (last state of each frame).
-    # Measured WRIST_MEAN_CM cm on an idle machine; a loaded one (the solver missing its 2 ms ticks)
-    # misses the frame count above first.
+    # Bound: twice the figure of an unloaded run (WRIST_MEAN_CM). On a machine so loaded that the
+    # stack falls behind real time the error grows (6.1 cm at load 20 on 2 cores), but then fewer
+    # than 90 % of the frames reach the robot and the check above fails first (46 of 111 there).
     assert s["wrist_err_cm"]["mean"] < 2 * WRIST_MEAN_CM, s["wrist_err_cm"]
     # No joint ever commanded past its limits; the simulated joints stay within them
     # up to the servo's compliance.
