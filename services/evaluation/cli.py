@@ -97,29 +97,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
-    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGORITHMS and a != MINK]
-    if unknown:
-        raise SystemExit(f"unknown algorithms {unknown}; known: {[*sorted(ALGORITHMS), MINK]}")
-    if MINK in algos:
-        try:
-            require_mink()
-        except MinkMissingError as exc:
-            raise SystemExit(str(exc)) from None
+    algos, solver, wqp_weights, retarget = _settings(args)
     robot = build_robot_model(with_waist=not args.no_waist)
-    defaults = RetargetConfig()
-    level = getattr(args, "wrist_orientation_level", None)
-    elbows = getattr(args, "elbow_placement", defaults.elbow_placement)
-    oref = getattr(args, "orientation_reference", defaults.orientation_reference)
-    mapping = getattr(args, "mapping", defaults.mode)
-    if getattr(args, "paper", False):
-        level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
-    solver = {} if level is None else {"wrist_orientation_level": level}
-    wq = getattr(args, "wqp_weights", None)
-    wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
-    # The service's own retarget settings; only what a flag changed differs.
-    retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref}
-    retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     ik_check = not getattr(args, "no_ik_check", False)
     sim = not args.no_sim
     # The level-1 tick mask comes from the strict hierarchy, so run it first.
@@ -159,27 +138,11 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         "clips": clips_out,
         "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)},
         "paper": PAPER,
-        "settings": {
-            "algos": algos,
-            "qp": args.qp,
-            "rate_hz": args.rate,
-            "mapping": mapping,
-            "skeleton_map": getattr(args, "skeleton_map", None),
-            "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
-            "retarget": retarget,
-            "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
-            "solver": {
-                "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
-                "gain": SolverConfig().gain,
-                "orientation_gain": SolverConfig().orientation_gain,
-                "damping": list(SolverConfig().damping),
-            },
-            "dof": robot.nq,
-            "sim": sim,
-            "reachable_tol": REACHABLE_TOL,
-            "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
-            "tick's command is for (t + dt)",
-        },
+    }
+    result["settings"] = _settings_json(args, algos, solver, wqp_weights, retarget, robot.nq)
+    result["settings"] |= {
+        "skeleton_map": getattr(args, "skeleton_map", None),
+        "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
     }
     return result, traces
 
@@ -195,6 +158,64 @@ def _compare_summary(clips: list[dict]) -> dict:
             o["hqp_elbow_better"] += int(row["hqp_elbow_better"])
             o["hqp_wrist_better"] += int(row["hqp_wrist_better"])
     return out
+
+
+def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
+    """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
+    ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows and eq. 4 against the rest
+    pose. The retargeter otherwise runs with the service's own settings (``RetargetConfig``)."""
+    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
+    unknown = [a for a in algos if a not in ALGORITHMS and a != MINK]
+    if unknown:
+        raise SystemExit(f"unknown algorithms {unknown}; known: {[*sorted(ALGORITHMS), MINK]}")
+    if MINK in algos:
+        try:
+            require_mink()
+        except MinkMissingError as exc:
+            raise SystemExit(str(exc)) from None
+    defaults = RetargetConfig()
+    level = getattr(args, "wrist_orientation_level", None)
+    elbows = getattr(args, "elbow_placement", defaults.elbow_placement)
+    oref = getattr(args, "orientation_reference", defaults.orientation_reference)
+    mapping = getattr(args, "mapping", defaults.mode)
+    if getattr(args, "paper", False):
+        level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
+    solver = {} if level is None else {"wrist_orientation_level": level}
+    wq = getattr(args, "wqp_weights", None)
+    wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
+    retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref}
+    retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
+    return algos, solver, wqp_weights, retarget
+
+
+def _settings_json(
+    args: argparse.Namespace,
+    algos: list[str],
+    solver: dict,
+    wqp_weights: tuple[float, ...] | None,
+    retarget: dict,
+    dof: int,
+) -> dict:
+    """What ran, for the result JSON (anyone can rerun it from these)."""
+    return {
+        "algos": algos,
+        "qp": args.qp,
+        "rate_hz": args.rate,
+        "mapping": retarget["mode"],
+        "retarget": retarget,
+        "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
+        "solver": {
+            "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
+            "gain": SolverConfig().gain,
+            "orientation_gain": SolverConfig().orientation_gain,
+            "damping": list(SolverConfig().damping),
+        },
+        "dof": dof,
+        "sim": not args.no_sim,
+        "reachable_tol": REACHABLE_TOL,
+        "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
+        "tick's command is for (t + dt)",
+    }
 
 
 def main(args: argparse.Namespace) -> int:
