@@ -71,7 +71,7 @@ def test_ik_check_reaches_forward_kinematics_and_rejects_far_points(arms):
         assert res <= 0.01
     far = ik.robot.frame_poses(arms.q_rest, names=("left_wrist",))["left_wrist"][0] + np.array([0.0, 0.0, 1.0])
     res, _ = ik.solve(far)
-    assert res > 0.5  # 1 m above the hanging hand: the arm (0.38 m) gets within about 0.6 m at best
+    assert res > 0.2  # 1 m above the hanging hand is ~0.65 m from the shoulder; the arm reaches 0.38 m
 
 
 def test_reachability_report_counts_every_valid_target(robot, arms):
@@ -163,7 +163,8 @@ def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, 
             f"{side}_wrist": f"{pre}Hand",
             f"{side}_hand": f"{pre}Hand/end",
         }
-    smap.write_text('name = "renamed"\n[bones]\n' + "".join(f'{k} = "{v}"\n' for k, v in bones.items()))
+    text = 'name = "renamed"\n[bones]\n' + "".join(f'{k} = "{v}"\n' for k, v in bones.items())
+    smap.write_text(text + '[hips]\nleft = "SinUpperLeg"\nright = "DexUpperLeg"\n')  # as the built-in map
     _, mapped = load_and_retarget(clip, robot, retarget={}, skeleton_map=smap)
     _, original = load_and_retarget(src, robot, retarget={})
     assert len(mapped) == len(original)
