@@ -56,9 +56,9 @@ class RetargetConfig:
     """Retarget configuration (all fields settable from the CLI or a config file).
 
     Attributes:
-        mode: "reach" (default: the wrist per direction from the shoulder, the operator's reach ratio
-            onto the robot's sampled reach in that direction), "bounded" (eqs. 1-3 per axis,
-            clamped to the box), "paper" (eqs. 1-3 literally) or "incremental".
+        mode: "bounded" (default: eqs. 1-3 per axis, clamped to the box), "reach" (the wrist per
+            direction from the shoulder, the operator's reach ratio onto the robot's sampled reach in
+            that direction), "paper" (eqs. 1-3 literally) or "incremental".
         reach_samples: Monte Carlo samples of the reach map ("reach" mode; more than the box needs,
             since each direction of the sphere gets its own estimate).
         robot: robot profile name or path.

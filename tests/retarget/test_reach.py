@@ -82,12 +82,13 @@ def test_unreachable_directions_turn_continuously_to_reachable_ones():
 
 @pytest.fixture(scope="module")
 def reach_retargeter(robot14, workspace):
-    return Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    return Retargeter(RetargetConfig(mode="reach"), workspace=workspace, robot=robot14)
 
 
-def test_reach_is_the_default_mode(reach_retargeter):
-    assert reach_retargeter.config.mode == "reach"
+def test_reach_mode_builds_a_reach_map_per_arm(reach_retargeter):
     assert set(reach_retargeter.reach) == {"left", "right"}
+    for side, rmap in reach_retargeter.reach.items():
+        np.testing.assert_allclose(rmap.centre, reach_retargeter.arms[side].centre)
 
 
 def test_target_sliding_along_the_edge_of_reach_does_not_jump(reach_retargeter):
