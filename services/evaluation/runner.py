@@ -29,6 +29,7 @@ from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
+from services.solver.targets import TargetTracker
 from services.solver.wqp import WeightedQp
 from shared.messages import TARGET_NAMES, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
@@ -94,6 +95,7 @@ def run_algorithm(
     settle: float = 0.5,
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
+    wrist_only: bool = False,
 ) -> Trace:
     """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
 
@@ -104,11 +106,16 @@ def run_algorithm(
         solver: further :class:`SolverConfig` fields (e.g. ``wrist_orientation_level``).
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
+        wrist_only: the solver gets the wrist targets only (:func:`wrist_only_targets`); errors are
+            still measured against the full targets (the operator's retargeted elbows).
     """
     core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate, solver_id="eval", **(solver or {})))
     if algo == "wqp" and wqp_weights is not None:
         core.algorithm = WeightedQp(make_backend(qp), level_weights=wqp_weights, eps=core.config.damping)
     core.reset(robot.q_rest)
+    # The reference the errors are measured against: the full targets, even when the solver sees less.
+    reference = TargetTracker(core.config.target_horizon, core.config.target_timeout)
+    fed = wrist_only_targets(targets) if wrist_only else targets
     simcore = None
     if sim:
         from services.sim.sim_core import SimConfig, SimCore
@@ -128,15 +135,18 @@ def run_algorithm(
     sim_R = {n: [] for n in WRISTS}
     k_next = 0
     first = _at_rest(targets[0])  # held through the settle: no extrapolation away from it
+    first_fed = _at_rest(fed[0])
     for tick in range(n_ticks):
         t = tick * dt
-        msg = None
+        msg = ref = None
         if t < settle:
-            msg = first if tick == 0 else None
+            msg, ref = (first_fed, first) if tick == 0 else (None, None)
         else:
             while k_next < len(targets) and stamps[k_next] <= t + 1e-12:
-                msg = targets[k_next]
+                msg, ref = fed[k_next], targets[k_next]
                 k_next += 1
+        if ref is not None:
+            reference.update(ref, t)
         cmd = core.step(msg, None, t)
         if simcore is not None:
             simcore.advance(cmd, dt)  # the sim maps commands by joint name
@@ -147,7 +157,7 @@ def run_algorithm(
             # The command of tick t is the pose for t + dt (the sim reaches it over the next tick,
             # the solver's feed-forward aims there): score it against the reference at t + dt as
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
-            s = core.tracker.sample(n, t + dt)
+            s = reference.sample(n, t + dt)
             ok = s is not None and not s.held
             ref_ok[n].append(ok)
             ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
@@ -188,6 +198,16 @@ def run_algorithm(
         sim_p=arr(sim_p),
         sim_R=arr(sim_R),
     )
+
+
+def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:
+    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms."""
+    out = []
+    for tt in targets:
+        tg = {n: (replace(t, valid=False, v=np.zeros(3), w=np.zeros(3)) if n in ELBOWS else t)
+              for n, t in tt.targets.items()}  # fmt: skip
+        out.append(replace(tt, targets=tg, upper_arms={}))
+    return out
 
 
 def _at_rest(tt: TaskTargets) -> TaskTargets:

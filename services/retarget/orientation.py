@@ -169,3 +169,55 @@ class ForearmOrientationMap(OrientationMap):
     def with_alignment(self, R_H: np.ndarray, A: np.ndarray) -> np.ndarray:
         """Robot target orientation (3, 3) for operator hand R_H (3, 3) and forearm alignment A (3, 3)."""
         return np.asarray(A) @ np.asarray(R_H, dtype=float) @ self.right
+
+
+def upper_arm_frame(upper: np.ndarray, fore: np.ndarray) -> np.ndarray | None:
+    """Upper-arm frame (3, 3): x along the upper arm, z normal to the arm plane; None when straight.
+
+    Args:
+        upper: (3,) shoulder -> elbow. fore: (3,) elbow -> wrist.
+    """
+    x = np.asarray(upper, dtype=float) / norm3(upper)
+    z = cross3(x, np.asarray(fore, dtype=float) / norm3(fore))
+    nz = norm3(z)
+    if nz < STRAIGHT_SIN:
+        return None
+    z /= nz
+    return np.array([x, cross3(z, x), z]).T
+
+
+class UpperArmMap:
+    """Operator upper arm -> orientation ``R_m`` (3, 3) of the robot link that plays it (seed 004 eq. 6).
+
+    The operator's upper-arm frame is built from positions (shoulder -> elbow, and the arm plane
+    through the wrist), not from a bone's own axes: marker sources (C3D) have no humerus frame and
+    BVH rigs disagree about its twist, but every source that has the three joints fixes this frame.
+    The arm is taken on the robot's proportions (the swivel elbow target and the wrist target,
+    :mod:`.elbow`), so the link orientation it gives puts the robot's elbow on the elbow target.
+    The constant offset between that frame and the link is read off the robot at its rest pose::
+
+        R_m = F(elbow - c, wrist - elbow) · F_restᵀ · R_link_rest
+
+    For a nearly straight arm (plane undefined) the rest link is turned by the smallest rotation
+    that carries the rest upper-arm direction onto the new one.
+
+    Args:
+        centre: (3,) robot shoulder centre [m]. elbow_rest, wrist_rest: (3,) robot frames at rest [m].
+        R_link_rest: (3, 3) upper-arm link orientation at rest (base frame).
+    """
+
+    def __init__(self, centre: np.ndarray, elbow_rest: np.ndarray, wrist_rest: np.ndarray, R_link_rest: np.ndarray):
+        self.centre = np.asarray(centre, dtype=float)
+        F = upper_arm_frame(elbow_rest - self.centre, wrist_rest - elbow_rest)
+        if F is None:
+            raise ValueError("the robot's rest pose has a straight arm: no upper-arm plane to calibrate on")
+        self.offset = F.T @ np.asarray(R_link_rest, dtype=float)
+        self.u_rest = (elbow_rest - self.centre) / norm3(elbow_rest - self.centre)
+        self.R_link_rest = np.asarray(R_link_rest, dtype=float)
+
+    def __call__(self, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
+        """``R_m`` (3, 3) for the arm with elbow (3,) and wrist (3,) [m] (robot base frame)."""
+        F = upper_arm_frame(elbow - self.centre, wrist - elbow)
+        if F is None:
+            return align(self.u_rest, elbow - self.centre) @ self.R_link_rest
+        return F @ self.offset

@@ -28,14 +28,17 @@ import numpy as np
 from shared.messages import TARGET_NAMES, Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import upper_arm_frame as upper_arm_link
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.wrist_only import is_wrist_only
 
-from .calibration import Calibration, CalibrationError, anthropometric
+from .calibration import DEFAULT_ARM_LENGTH, Calibration, CalibrationError, anthropometric, from_wrists
 from .elbow import ArmGeometry, human_swivel
 from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from .orientation import (
     ForearmOrientationMap,
     OrientationMap,
+    UpperArmMap,
     angular_velocity,
     arm_alignment,
     calibration_orientations,
@@ -81,6 +84,11 @@ class RetargetConfig:
             (:class:`.orientation.ForearmOrientationMap`; needs ``elbow_placement="swivel"``, else it
             acts as "posture"). ``mimic retarget --elbow-placement mapped --orientation-reference rest``
             reproduces the paper.
+        arm_length: operator arm length, shoulder to wrist [m], for sources without arm bones
+            (wrist-only: VR controllers); they calibrate with :func:`.calibration.from_wrists`.
+        upper_arms: publish ``TaskTargets.upper_arms`` (seed 004's operator upper-arm orientation
+            ``R_m`` in the robot frame) for every arm whose shoulder, elbow and wrist are valid
+            (needs ``elbow_placement="swivel"``).
     """
 
     mode: str = "bounded"
@@ -98,6 +106,8 @@ class RetargetConfig:
     one_arm_after: int = 30
     elbow_placement: str = ELBOW_PLACEMENTS[0]
     orientation_reference: str = ORIENTATION_REFERENCES[0]
+    arm_length: float = DEFAULT_ARM_LENGTH
+    upper_arms: bool = True
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -159,6 +169,15 @@ class Retargeter:
             if self.config.elbow_placement == "swivel"
             else {}
         )
+        #: side -> map of the operator's upper arm onto the robot's upper-arm link (seed 004 eq. 6)
+        self.upper_arm_maps: dict[str, UpperArmMap] = {}
+        if self.config.upper_arms and self.arms:
+            for side, arm in self.arms.items():
+                link = upper_arm_link(prof, side)
+                R_link = self.robot.frame_poses(self.robot.q_rest, names=(link,))[link][1]
+                self.upper_arm_maps[side] = UpperArmMap(
+                    arm.centre, rest[f"{side}_elbow"][0], rest[f"{side}_wrist"][0], R_link
+                )
         #: target -> arm side ("left" / "right")
         self.side_of = {t: t.split("_")[0] for t in TARGET_NAMES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
@@ -276,7 +295,10 @@ class Retargeter:
         self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
         if self._recalibrate:
             try:
-                cal = anthropometric(frame, self.bone_of)
+                if is_wrist_only(frame):
+                    cal = from_wrists(frame, self.bone_of, self.config.arm_length)
+                else:
+                    cal = anthropometric(frame, self.bone_of)
                 self._calib_tries += 1
                 if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
                     raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
@@ -297,7 +319,13 @@ class Retargeter:
         self._placed.clear()
         for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
             targets[t] = self._target(t, frame, dt, targets)
-        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
+        upper_arms = {}
+        for side, ua_map in self.upper_arm_maps.items():
+            wrist = targets[f"{side}_wrist"]
+            placed = self._place_elbow(side, frame, wrist.p) if wrist.valid else None
+            if placed is not None:
+                upper_arms[side] = matrix_to_quat(ua_map(placed[0], wrist.p))
+        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode, upper_arms=upper_arms)
 
     def _posture_maps(self, frame: HumanFrame) -> None:
         """Eq. (4) offsets against the robot's calibration posture (``orientation_reference="posture"``).

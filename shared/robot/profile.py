@@ -119,3 +119,15 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
     if missing:
         raise ProfileError(f"{path}: [frames] lacks {missing}")
     return prof
+
+
+def upper_arm_frame(profile: RobotProfile, side: str) -> str:
+    """Robot frame that plays the operator's upper arm on ``side`` (``[frames] <side>_upper_arm``).
+
+    Raises:
+        ProfileError: the profile does not name one (seed 004's mimicry needs it).
+    """
+    key = f"{side}_upper_arm"
+    if key not in profile.frames:
+        raise ProfileError(f"profile {profile.name}: [frames] lacks {key} (the link that plays the upper arm)")
+    return profile.frames[key]
