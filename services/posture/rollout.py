@@ -225,6 +225,8 @@ def rollout(
                 qd0[:ACTION_DIM] = A_pi[i]
             else:
                 qd0 = cfg.posture_gain * (robot.q_rest[arms.arm[i]] - q[arms.arm[i]])
+            if not cfg.orientation_gain:
+                J, b = J[:3], b[:3]  # position-only end-effector task
             qd[arms.arm[i]] = clik_step(J, b, qd0)
         lb = np.maximum(-robot.vmax, (robot.lower - q) / dt)
         ub = np.minimum(robot.vmax, (robot.upper - q) / dt)

@@ -38,11 +38,11 @@ from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMa
 from .orientation import (
     ForearmOrientationMap,
     OrientationMap,
-    UpperArmMap,
     angular_velocity,
     arm_alignment,
     calibration_orientations,
 )
+from .upper_arm import UpperArmSolver
 from .velocity import LowPassVelocity
 from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
 
@@ -169,15 +169,11 @@ class Retargeter:
             if self.config.elbow_placement == "swivel"
             else {}
         )
-        #: side -> map of the operator's upper arm onto the robot's upper-arm link (seed 004 eq. 6)
-        self.upper_arm_maps: dict[str, UpperArmMap] = {}
+        #: side -> the operator's upper arm as the robot's upper-arm link orientation (seed 004 eq. 6)
+        self.upper_arm_maps: dict[str, UpperArmSolver] = {}
         if self.config.upper_arms and self.arms:
-            for side, arm in self.arms.items():
-                link = upper_arm_link(prof, side)
-                R_link = self.robot.frame_poses(self.robot.q_rest, names=(link,))[link][1]
-                self.upper_arm_maps[side] = UpperArmMap(
-                    arm.centre, rest[f"{side}_elbow"][0], rest[f"{side}_wrist"][0], R_link
-                )
+            for side in self.arms:
+                self.upper_arm_maps[side] = UpperArmSolver(self.robot, side, upper_arm_link(prof, side))
         #: target -> arm side ("left" / "right")
         self.side_of = {t: t.split("_")[0] for t in TARGET_NAMES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
@@ -204,6 +200,8 @@ class Retargeter:
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
         self._wfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        for ua in getattr(self, "upper_arm_maps", {}).values():
+            ua.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()

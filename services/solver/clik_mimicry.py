@@ -29,7 +29,7 @@ from services.solver.linalg import split_row_space
 from shared.kinematics import AlignmentTask, Configuration, JointVelocityTask, Limit, Task
 
 #: Default η of eq. (3) [1/s]: near alignment the upper arm turns at about 2η times its error.
-DEFAULT_ETA = 3.0
+DEFAULT_ETA = 10.0
 
 
 def clik_step(J: np.ndarray, b: np.ndarray, qd0: np.ndarray, damping: float = 0.0) -> np.ndarray:

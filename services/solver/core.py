@@ -116,7 +116,7 @@ class SolverConfig:
     wrist_orientation_level: int = 2
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
-    mimicry_eta: float = 3.0
+    mimicry_eta: float = 10.0
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.rate <= 10000.0:
