@@ -24,6 +24,7 @@ import numpy as np
 
 from services.posture.features import (
     ACTION_DIM,
+    ACTION_LIMIT,
     ARM_STATE_DIM,
     DECODER_DIM,
     SIDES,
@@ -107,7 +108,7 @@ class PolicyOutput:
     """One inference for both arms (rows in :data:`.features.SIDES` order).
 
     Attributes:
-        qd0: (2, 3) actions [rad/s]. x_dv: (2, 3) virtual targets [m]. gap: (2,) |x_dv - p| [m].
+        qd0: (2, 3) actions [rad/s], within ±ACTION_LIMIT. x_dv: (2, 3) virtual targets [m]. gap: (2,) |x_dv - p| [m].
         gate: (2,) True where the action may be used.
     """
 
@@ -175,7 +176,7 @@ class PosturePolicy:
 
     def act(self, S: np.ndarray) -> PolicyOutput:
         """Actions, virtual targets and gate for states S (2, 14) (left, right)."""
-        a = mlp(self.enc, S.reshape(-1)).reshape(2, ACTION_DIM)
+        a = np.clip(mlp(self.enc, S.reshape(-1)).reshape(2, ACTION_DIM), -ACTION_LIMIT, ACTION_LIMIT)
         dec_in = np.concatenate([a, S[:, 7:14], S[:, 0:7]], axis=1)
         z = mlp(self.dec, dec_in.reshape(-1)).reshape(2, ARM_STATE_DIM)
         u = z[:, :3] / np.maximum(np.sqrt((z[:, :3] ** 2).sum(1, keepdims=True)), 1e-9)

@@ -19,7 +19,16 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from services.posture.features import ACTION_DIM, SIDES, ArmFrame, action_joints, arm_joints, arm_state, state
+from services.posture.features import (
+    ACTION_DIM,
+    ACTION_LIMIT,
+    SIDES,
+    ArmFrame,
+    action_joints,
+    arm_joints,
+    arm_state,
+    state,
+)
 from services.posture.policy import PosturePolicy
 from services.solver.clik_mimicry import DEFAULT_ETA, clik_step
 from shared.kinematics import AlignmentTask, Configuration
@@ -205,7 +214,7 @@ def rollout(
             S[i] = state(matrix_to_quat(clip.R[i, k]), p_t[i], q[arms.arm[i]], arms.Q_ref[i])
             if clip.has_m[i, k]:
                 arms.align[i].set_target(clip.R_m[i, k], check=False)
-                A[i] = -cfg.eta * arms.align[i].gradient(conf)[arms.act[i]]
+                A[i] = np.clip(-cfg.eta * arms.align[i].gradient(conf)[arms.act[i]], -ACTION_LIMIT, ACTION_LIMIT)
                 lab[i] = True
         A_pi = np.zeros((2, ACTION_DIM))
         gate = np.zeros(2, bool)
@@ -231,7 +240,7 @@ def rollout(
         lb = np.maximum(-robot.vmax, (robot.lower - q) / dt)
         ub = np.minimum(robot.vmax, (robot.upper - q) / dt)
         q = q + np.minimum(np.maximum(qd, lb), ub) * dt
-        if settling or tick % cfg.record_every:
+        if tick % cfg.record_every:
             continue
         ee = np.full(2, np.nan)
         we = np.full(2, np.nan)
@@ -240,9 +249,10 @@ def rollout(
             pe = conf.get_frame_pose(elbow_names[i])[0]
             pw = conf.get_frame_pose(wrist_names[i])[0]
             if clip.elbow_ok[i, k]:
-                ee[i] = np.linalg.norm(pe - clip.elbow[i, k])
                 Z[i] = arm_state(arms.frames[i], clip.elbow[i, k], clip.p[i, k])
-            if clip.wrist_ok[i, k]:
+                if not settling:  # the settle is labelled (the robot leaves its rest pose) but not scored
+                    ee[i] = np.linalg.norm(pe - clip.elbow[i, k])
+            if clip.wrist_ok[i, k] and not settling:
                 we[i] = np.linalg.norm(pw - p_t[i])
         rec["S"].append(S)
         rec["A"].append(A)

@@ -161,8 +161,8 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-                tot_a += float(loss_a) * len(idx)
-                tot_z += float(loss_z) * len(idx)
+                tot_a += float(loss_a.detach()) * len(idx)
+                tot_z += float(loss_z.detach()) * len(idx)
             sched.step()
             curve.append((tot_a / n, tot_z / n))
             if progress is not None:
