@@ -12,6 +12,7 @@ from pathlib import Path
 
 from shared.bus import add_bus_args
 
+from .calibration import DEFAULT_ARM_LENGTH
 from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from .workspace import DEFAULT_SAMPLES, Shrink
 
@@ -59,6 +60,14 @@ def add_retarget_options(p: argparse.ArgumentParser) -> None:
         "(robot posture at the calibration targets) or rest (the profile rest pose, the paper read literally)",
     )
 
+    g.add_argument(
+        "--arm-length",
+        type=float,
+        default=DEFAULT_ARM_LENGTH,
+        help="operator arm length, shoulder to wrist [m], assumed when the source has no arm bones (wrist-only)",
+    )
+    g.add_argument("--no-upper-arms", action="store_true", help="do not publish the operator's upper-arm orientations")
+
 
 def config_from_args(args: argparse.Namespace):
     """RetargetConfig from parsed options."""
@@ -77,6 +86,8 @@ def config_from_args(args: argparse.Namespace):
         elbow_placement=args.elbow_placement,
         orientation_reference=args.orientation_reference,
         auto_calibrate=not getattr(args, "no_auto_calibrate", False),
+        arm_length=getattr(args, "arm_length", DEFAULT_ARM_LENGTH),
+        upper_arms=not getattr(args, "no_upper_arms", False),
     )
 
 

@@ -37,6 +37,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "elbows + wrist orientations > posture; 3: wrist positions > elbows > wrist orientations",
     )
     parser.add_argument(
+        "--posture-policy",
+        default=None,
+        metavar="FILE",
+        help="learned posture policy (mimic posture train): for wrist-only targets (elbows invalid) its "
+        "null-space velocities go on a level below the wrists; unused while elbow targets are valid",
+    )
+    parser.add_argument(
         "--closed-loop",
         action="store_true",
         help="re-anchor on the measured joints when they drift more than the resync threshold from the command",

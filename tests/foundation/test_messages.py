@@ -190,8 +190,14 @@ def test_task_targets_carry_optional_upper_arms_validated():
     np.testing.assert_allclose(back.upper_arms["left"], q)
     assert "right" not in back.upper_arms
     assert TaskTargets.decode(make_targets().encode()).upper_arms == {}  # older publishers: absent
-    for bad, reason in (({"middle": [1.0, 0, 0, 0]}, "unknown_name"), ({"left": [2.0, 0, 0, 0]}, "quaternion"),
-                        ({"left": [1.0, 0, 0]}, "shape"), ({"left": [float("nan"), 0, 0, 1.0]}, "nan"), ([1], "type")):  # fmt: skip
+    cases = [
+        ({"middle": [1.0, 0, 0, 0]}, "unknown_name"),
+        ({"left": [2.0, 0, 0, 0]}, "quaternion"),
+        ({"left": [1.0, 0, 0]}, "shape"),
+        ({"left": [float("nan"), 0, 0, 1.0]}, "nan"),
+        ([1], "type"),
+    ]
+    for bad, reason in cases:
         d = msgpack.unpackb(make_targets().encode())
         d["ua"] = bad
         with pytest.raises(MessageError) as exc:
