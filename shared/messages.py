@@ -28,6 +28,8 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 
+from shared.targets import SIDES, TARGET_NAMES
+
 SCHEMA_VERSION = 1
 
 #: Largest payload any decoder accepts [bytes]; bigger ones are rejected
@@ -45,12 +47,8 @@ HUMAN_BONES: tuple[str, ...] = (
     "chest",
     "neck",
     "head",
-    *(f"{side}_{bone}" for side in ("left", "right") for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
+    *(f"{side}_{bone}" for side in SIDES for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
 )
-#: Retargeting targets, in the robot base frame.
-TARGET_NAMES: tuple[str, ...] = ("left_wrist", "right_wrist", "left_elbow", "right_elbow")
-#: Arm sides whose operator upper-arm orientation TaskTargets may carry (``TaskTargets.upper_arms``).
-ARM_SIDES: tuple[str, ...] = ("left", "right")
 #: Command status values a solver may report.
 COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init")
 
@@ -431,7 +429,7 @@ class TaskTargets(Message):
                 items[5],
             )
         raw_ua = _dict(d.get("ua", {}), "ua")
-        _names(list(raw_ua), "ua", ARM_SIDES)
+        _names(list(raw_ua), "ua", SIDES)
         upper_arms = {s: _quat(q, f"ua.{s}") for s, q in raw_ua.items()}
         return cls(
             Header.from_wire(_req(d, "hdr", "TaskTargets")),

@@ -23,7 +23,6 @@ import numpy as np
 
 from shared.robot.pinocchio_model import RobotModel
 
-SIDES = ("left", "right")
 STATE_DIM = 14
 ACTION_DIM = 3
 DECODER_DIM = ACTION_DIM + 7 + 7
@@ -39,14 +38,18 @@ ARM_STATE_LAYOUT = ("ux", "uy", "uz", "fx", "fy", "fz")
 
 
 def arm_joints(robot: RobotModel, side: str) -> np.ndarray:
-    """Indices (7,) of the side's arm joints in the model's joint order (profile order)."""
-    names = getattr(robot.profile, f"{side}_arm")
-    return np.array([robot.joint_names.index(n) for n in names])
+    """Indices (7,) of the side's arm joints in the model's joint order (profile ``[arms.<side>]``)."""
+    return np.array([robot.joint_names.index(n) for n in robot.profile.arms[side].joints])
 
 
 def action_joints(robot: RobotModel, side: str) -> np.ndarray:
-    """Indices (3,) of the joints the action drives: the first three of the arm (the shoulder)."""
-    return arm_joints(robot, side)[:ACTION_DIM]
+    """Indices (3,) of the joints the action drives: the profile's shoulder joints (before the elbow)."""
+    shoulder = robot.profile.arms[side].shoulder
+    if len(shoulder) != ACTION_DIM:
+        raise ValueError(
+            f"{robot.profile.name}: {side} arm has {len(shoulder)} shoulder joints, the policy {ACTION_DIM}"
+        )
+    return np.array([robot.joint_names.index(n) for n in shoulder])
 
 
 @dataclass(frozen=True)

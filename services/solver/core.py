@@ -38,12 +38,10 @@ from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
 from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
-WRISTS = ("left_wrist", "right_wrist")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
-ELBOWS = ("left_elbow", "right_elbow")
-SIDES = ("left", "right")
 
 
 @dataclass
@@ -219,7 +217,7 @@ class SolverCore:
             if self.config.algo == "clik-mimicry":
                 levels = [self.levels[0], [*self.levels[1], *slot]]
             else:
-                drop = {id(t) for t in self.elbow_tasks if t.frame.split("_")[0] in wrist_only}
+                drop = {id(t) for t in self.elbow_tasks if side_of(t.frame) in wrist_only}
                 kept = [[t for t in lv if id(t) not in drop] for lv in self.levels]
                 kept = [lv for lv in kept if lv]
                 levels = [*kept[:-1], slot, kept[-1]] if slot else kept
@@ -398,7 +396,7 @@ class SolverCore:
             task.set_target(s.p, s.R, s.v, s.w, check=False)
             task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
         for task in self.elbow_tasks:
-            if task.frame.split("_")[0] in self.wrist_only:
+            if side_of(task.frame) in self.wrist_only:
                 continue  # a wrist-only arm: its posture level replaces the elbow
             s = self.tracker.sample(task.frame, t)
             if s is None:

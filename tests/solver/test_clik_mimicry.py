@@ -29,7 +29,7 @@ def robot14():
 
 
 def _arm(robot, side="left"):
-    return np.array([robot.joint_names.index(n) for n in getattr(robot.profile, f"{side}_arm")])
+    return np.array([robot.joint_names.index(n) for n in robot.profile.arms[side].joints])
 
 
 def _random_q(robot, rng):
