@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from shared.targets import SIDES
+
 log = logging.getLogger("mimic.posture")
 
 
@@ -63,7 +65,7 @@ def split_clips(clips: list[str], every: int) -> tuple[list[str], list[str]]:
 
 def gate_thresholds(weights: dict, meta: dict, data) -> dict:
     """Per side: 2x the 99th percentile of |x_dv - p| over the training states (at least 3 cm)."""
-    from services.posture.features import SIDES, decoder_input
+    from services.posture.features import decoder_input
     from services.posture.policy import _layers, mlp
 
     out = {}
@@ -91,7 +93,7 @@ GATE_MIN = 0.03
 def _train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, SIDES, STATE_LAYOUT
+    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, STATE_LAYOUT
     from services.posture.policy import save_policy
     from services.posture.relabel import ExperimentConfig, relabel_experiment
     from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip

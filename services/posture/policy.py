@@ -27,11 +27,11 @@ from services.posture.features import (
     ACTION_LIMIT,
     ARM_STATE_DIM,
     DECODER_DIM,
-    SIDES,
     STATE_DIM,
     ArmFrame,
     virtual_target,
 )
+from shared.targets import SIDES
 
 FORMAT = "mimic-posture-policy/1"
 

@@ -22,7 +22,6 @@ import pinocchio as pin
 from services.posture.features import (
     ACTION_DIM,
     ACTION_LIMIT,
-    SIDES,
     ArmFrame,
     action_joints,
     arm_joints,
@@ -35,6 +34,7 @@ from shared.kinematics import AlignmentTask, Configuration
 from shared.robot.pinocchio_model import RobotModel
 from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import SIDES
 
 log = logging.getLogger("mimic.posture")
 

@@ -17,7 +17,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.posture.features import ACTION_DIM, ARM_STATE_DIM, DECODER_DIM, SIDES, STATE_DIM
+from services.posture.features import ACTION_DIM, ARM_STATE_DIM, DECODER_DIM, STATE_DIM
+from shared.targets import SIDES
 
 log = logging.getLogger("mimic.posture")
 

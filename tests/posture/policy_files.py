@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from services.posture.features import ARM_STATE_DIM, DECODER_DIM, SIDES, STATE_DIM, action_joints
+from services.posture.features import ARM_STATE_DIM, DECODER_DIM, STATE_DIM, action_joints
 from services.posture.policy import save_policy
 from services.retarget.elbow import ArmGeometry
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import matrix_to_quat
+from shared.targets import SIDES
 
 
 def random_weights(rng: np.random.Generator, hidden: int = 16, scale: float = 0.3) -> dict[str, np.ndarray]:

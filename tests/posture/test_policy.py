@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.posture.features import SIDES, decoder_input, virtual_target
+from services.posture.features import decoder_input, virtual_target
 from services.posture.policy import PolicyError, PosturePolicy, _layers, mlp, save_policy
 from shared.robot.pinocchio_model import build_robot_model
+from shared.targets import SIDES
 from tests.posture.policy_files import policy_meta, random_weights, write_random_policy
 
 
