@@ -72,6 +72,7 @@ class Trace:
     res1: np.ndarray
     sim_p: dict[str, np.ndarray] = field(default_factory=dict)
     sim_R: dict[str, np.ndarray] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -196,6 +197,7 @@ def run_algorithm(
         res1=np.asarray(rec["res1"]),
         sim_p=arr(sim_p),
         sim_R=arr(sim_R),
+        counts=dict(core.counts),
     )
 
 
