@@ -1,7 +1,7 @@
 """``mimic posture train|bench|gate``: the learned posture policy (seed 004 section 3).
 
     mimic posture train CLIPS... --out FILE [--relabel-rounds N] --json REPORT [--plot PNG]
-    mimic posture bench --policy FILE [--ticks N]                # numpy inference cost, JSON
+    mimic posture bench --policy FILE [--ticks N]                # = mimic bench posture: inference cost, JSON
     mimic posture gate --policy FILE CLIP                        # gate in and out of distribution, JSON
 
 ``train`` splits the clips by clip (sorted by name, every ``--holdout-every``-th held out for the
@@ -44,10 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
-    b = sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON")
-    b.add_argument("--policy", required=True, help="model file")
-    b.add_argument("--ticks", type=int, default=20000, help="ticks to time")
-    b.add_argument("--json", default=None, help="also write the JSON here")
+    from services.posture import bench
+
+    bench.add_arguments(sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON"))
     g = sub.add_parser("gate", help="gate on a clip's states and on out-of-distribution targets, JSON")
     g.add_argument("clip", help="held-out clip")
     g.add_argument("--policy", required=True, help="model file")
@@ -169,39 +168,6 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench(args: argparse.Namespace) -> int:
-    from services.posture.policy import PosturePolicy
-
-    pol = PosturePolicy.load(args.policy)
-    rng = np.random.default_rng(0)
-    S = np.zeros((2, 14))
-    S[:, 0] = 1.0
-    S[:, 4:7] = [[0.2, 0.2, 0.0], [0.2, -0.2, 0.0]]
-    S[:, 7:] = rng.normal(0, 0.3, (2, 7))
-    for _ in range(500):
-        pol.act(S)
-    times = np.empty(args.ticks)
-    for i in range(args.ticks):
-        t0 = time.perf_counter()
-        pol.act(S)
-        times[i] = time.perf_counter() - t0
-    us = times * 1e6
-    out = {
-        "what": "PosturePolicy.act: encoder + decoder + gate, both arms, one tick (numpy only)",
-        "ticks": args.ticks,
-        "us_mean": float(us.mean()),
-        "us_p50": float(np.percentile(us, 50)),
-        "us_p99": float(np.percentile(us, 99)),
-        "budget_us": 50.0,
-        "policy": str(args.policy),
-    }
-    text = json.dumps(out, indent=2)
-    if args.json:
-        Path(args.json).write_text(text)
-    sys.stdout.write(text + "\n")
-    return 0
-
-
 def _gate(args: argparse.Namespace) -> int:
     from services.posture.gate_check import gate_report
 
@@ -214,4 +180,6 @@ def _gate(args: argparse.Namespace) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    return {"train": _train, "bench": _bench, "gate": _gate}[args.posture_command](args)
+    from services.posture import bench
+
+    return {"train": _train, "bench": bench.main, "gate": _gate}[args.posture_command](args)

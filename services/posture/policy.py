@@ -145,6 +145,7 @@ class PosturePolicy:
         self.dec = _block(dec)
         self._centre = np.array([a.centre for a in self.arms])
         self._len = np.array([[a.upper, a.fore] for a in self.arms])
+        self._dec_in = np.zeros((2, DECODER_DIM))
 
     @property
     def robot(self) -> str:
@@ -176,14 +177,24 @@ class PosturePolicy:
 
     def act(self, S: np.ndarray) -> PolicyOutput:
         """Actions, virtual targets and gate for states S (2, 14) (left, right)."""
-        a = np.clip(mlp(self.enc, S.reshape(-1)).reshape(2, ACTION_DIM), -ACTION_LIMIT, ACTION_LIMIT)
-        dec_in = np.concatenate([a, S[:, 7:14], S[:, 0:7]], axis=1)
-        z = mlp(self.dec, dec_in.reshape(-1)).reshape(2, ARM_STATE_DIM)
-        u = z[:, :3] / np.maximum(np.sqrt((z[:, :3] ** 2).sum(1, keepdims=True)), 1e-9)
-        f = z[:, 3:] / np.maximum(np.sqrt((z[:, 3:] ** 2).sum(1, keepdims=True)), 1e-9)
-        x_dv = self._centre + self._len[:, :1] * u + self._len[:, 1:] * f
-        d = x_dv - S[:, 4:7]
-        gap = np.sqrt((d * d).sum(1))
+        x = S.reshape(-1)
+        for W, b in self.enc[:-1]:
+            x = np.tanh(x @ W + b)
+        W, b = self.enc[-1]
+        a = np.clip((x @ W + b).reshape(2, ACTION_DIM), -ACTION_LIMIT, ACTION_LIMIT)
+        d = self._dec_in  # (2, 17): (q̇₀, q, x_d), reused
+        d[:, :ACTION_DIM] = a
+        d[:, ACTION_DIM : ACTION_DIM + 7] = S[:, 7:14]
+        d[:, ACTION_DIM + 7 :] = S[:, 0:7]
+        x = d.reshape(-1)
+        for W, b in self.dec[:-1]:
+            x = np.tanh(x @ W + b)
+        W, b = self.dec[-1]
+        z = (x @ W + b).reshape(2, 2, 3)  # per arm: upper-arm and forearm directions
+        n = np.sqrt(np.einsum("ijk,ijk->ij", z, z))
+        x_dv = self._centre + np.einsum("ijk,ij->ik", z, self._len / np.maximum(n, 1e-9))
+        e = x_dv - S[:, 4:7]
+        gap = np.sqrt(np.einsum("ij,ij->i", e, e))
         gate = (gap <= self.threshold) & np.isfinite(a).all(1)
         return PolicyOutput(a, x_dv, gap, gate)
 
