@@ -146,8 +146,15 @@ def _train(args: argparse.Namespace) -> int:
         meta.update(gate_thresholds(weights, meta, data))
         return meta
 
-    weights, report, data = relabel_experiment(arms, train, test, make_meta, ecfg, tcfg, rcfg,
-                                               progress=lambda m: log.info("%s", m))  # fmt: skip
+    def epoch_done(side: str, epoch: int, losses: tuple[float, float]) -> None:
+        if (epoch + 1) % 10 == 0 or epoch + 1 == tcfg.epochs:
+            log.info(
+                "  fit %s: epoch %d/%d, losses %.3g (action) %.3g (decoder)", side, epoch + 1, tcfg.epochs, *losses
+            )
+
+    weights, report, data = relabel_experiment(
+        arms, train, test, make_meta, ecfg, tcfg, rcfg, progress=lambda m: log.info("%s", m), fit_progress=epoch_done
+    )
     meta = make_meta(weights, data)
     meta["samples"] = len(data)
     meta["train_wall_s"] = time.perf_counter() - t_start

@@ -86,12 +86,15 @@ def relabel_experiment(
     tcfg: TrainConfig | None = None,
     rcfg: RolloutConfig | None = None,
     progress: Callable[[str], None] | None = None,
+    fit_progress: Callable[[str, int, tuple[float, float]], None] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict, Dataset]:
     """Run Algorithm 1 and the BC comparison; returns (final relabelled weights, report, final D).
 
     Args:
         make_meta: (weights, dataset) -> model metadata (gate thresholds etc.), so intermediate
             policies can be run in closed loop.
+        progress: called with a line per stage. fit_progress: called per epoch of every fit
+            (side, epoch, (action loss, decoder loss)).
     """
     cfg = cfg or ExperimentConfig()
     tcfg = tcfg or TrainConfig()
@@ -113,7 +116,7 @@ def relabel_experiment(
         return expert_rolls[j]
 
     def train_policy(data: Dataset, tag: str):
-        w, rep = fit(data, tcfg)
+        w, rep = fit(data, tcfg, fit_progress)
         pol = PosturePolicy(w, make_meta(w, data))
         say(f"{tag}: trained on {len(data)} samples")
         return w, rep, pol
