@@ -50,6 +50,7 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # ~1 min on an idle machine; over 5 min at load 30 (retargeting with the upper-arm IK)
 def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     out, rep, png = tmp_path / "p.npz", tmp_path / "r.json", tmp_path / "curve.png"
     cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
