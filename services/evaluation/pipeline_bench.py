@@ -14,7 +14,8 @@ sim". ``hop_ms`` is each service's increment (its output's arrival minus its inp
 arrival; for retarget, minus ``t0``): one bus hop plus the service's hand-off and work.
 ``drops`` says where frames were lost: each service's own mailbox drops (``dropped``)
 and the samples it never received (``gaps``: numbers skipped by its publishers, i.e.
-lost inside Zenoh), summed in ``drops_total``.
+lost inside Zenoh), per input stream; ``drops_total`` sums them over the frame's path
+(frames, targets, commands: not the solver's newest-wins ``sim_state`` feedback).
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ from shared.report import emit_json
 
 log = logging.getLogger("mimic.bench.pipeline")
 HOPS = ("retarget", "solver", "sim")
+#: Input streams on a frame's path (mocap -> targets -> command); ``sim_state`` into the solver is
+#: feedback, newest-wins by design, and its overwritten samples are not lost frames.
+PATH = ("frames", "targets", "commands")
 #: ServiceStatus period of the bench's services [s]: the last one must come after the last frame.
 STATUS_PERIOD_S = 0.25
 
@@ -186,7 +190,9 @@ def run(args: argparse.Namespace) -> dict:
     result["hop_increment_ms"] = inc
     result["hop_ms"] = {h: {"p50": v["p50"], "p99": v["p99"]} for h, v in inc.items()}
     result["drops"] = service_drops(statuses)
-    result["drops_total"] = sum(d["dropped"] + d["gaps"] for d in result["drops"].values())
+    result["drops_total"] = sum(
+        n for d in result["drops"].values() for kind in ("dropped", "gaps") for s, n in d[kind].items() if s in PATH
+    )
     result["observer_gaps"] = observer.count("gaps")
     result["service_status"] = {
         k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
@@ -194,12 +200,15 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
-def service_drops(statuses: dict[str, ServiceStatus]) -> dict[str, dict[str, int]]:
-    """Per service (status key's service name): mailbox ``dropped`` and Zenoh-lost ``gaps``, from the last statuses."""
-    out: dict[str, dict[str, int]] = {}
+def service_drops(statuses: dict[str, ServiceStatus]) -> dict[str, dict[str, dict[str, int]]]:
+    """Per service, per input stream: mailbox ``dropped`` and Zenoh-lost ``gaps`` (from the last statuses)."""
+    out: dict[str, dict[str, dict[str, int]]] = {}
     for st in statuses.values():
         name = st.service if st.instance == "main" else f"{st.service}/{st.instance}"
-        out[name] = {"dropped": int(st.counts.get("dropped", 0)), "gaps": int(st.counts.get("gaps", 0))}
+        out[name] = {
+            kind: {k.split(".", 1)[1]: int(n) for k, n in st.counts.items() if k.startswith(kind + ".")}
+            for kind in ("dropped", "gaps")
+        }
     return out
 
 
