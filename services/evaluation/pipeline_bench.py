@@ -190,9 +190,7 @@ def run(args: argparse.Namespace) -> dict:
     result["hop_increment_ms"] = inc
     result["hop_ms"] = {h: {"p50": v["p50"], "p99": v["p99"]} for h, v in inc.items()}
     result["drops"] = service_drops(statuses)
-    result["drops_total"] = sum(
-        n for d in result["drops"].values() for kind in ("dropped", "gaps") for s, n in d[kind].items() if s in PATH
-    )
+    result["drops_total"] = path_drops(result["drops"])
     result["observer_gaps"] = observer.count("gaps")
     result["service_status"] = {
         k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
@@ -210,6 +208,11 @@ def service_drops(statuses: dict[str, ServiceStatus]) -> dict[str, dict[str, dic
             for kind in ("dropped", "gaps")
         }
     return out
+
+
+def path_drops(drops: dict[str, dict[str, dict[str, int]]]) -> int:
+    """Frames lost on the frame's path (:data:`PATH` streams), mailbox drops and gaps, over all services."""
+    return sum(n for d in drops.values() for kind in ("dropped", "gaps") for s, n in d[kind].items() if s in PATH)
 
 
 def main(args: argparse.Namespace) -> int:
