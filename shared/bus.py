@@ -268,6 +268,10 @@ class NumberedPublisher:
     def undeclare(self) -> None:
         self._pub.undeclare()
 
+    def __getattr__(self, name: str) -> Any:
+        # Everything else (key_expr, matching_status, ...) is the Zenoh publisher's.
+        return getattr(self._pub, name)
+
 
 def sample_number(sample: zenoh.Sample) -> tuple[int, int] | None:
     """``(publisher id, number)`` of a sample from a :class:`NumberedPublisher`; None for other publishers."""

@@ -159,6 +159,8 @@ def test_numbered_samples_carry_source_and_number_and_plain_ones_do_not(router):
         numbers = dict(got)
         assert numbers[b"y"] == (pub.source, pub.number)
         assert numbers[b"z"] is None
+        # The rest of the Zenoh publisher stays reachable (ingest waits on matching_status).
+        assert pub.matching_status.matching
         sub.undeclare()
     finally:
         a.close()
