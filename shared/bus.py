@@ -270,6 +270,8 @@ class NumberedPublisher:
 
     def __getattr__(self, name: str) -> Any:
         # Everything else (key_expr, matching_status, ...) is the Zenoh publisher's.
+        if name == "_pub":  # not declared (the constructor failed): no recursion
+            raise AttributeError(name)
         return getattr(self._pub, name)
 
 
