@@ -8,9 +8,9 @@ state) on one clock. Latency is ``arrival - hdr.t0``; a frame is dropped at a
 hop when its ``seq`` never shows up there.
 
 As issue 13 specifies the bench, the solver ticks on every target (``--trigger event``)
-and the sim publishes a state right after each applied command (``--state-on-command``,
-``--state-rate`` = the mocap rate), so the last hop's arrival is "command applied in the
-sim". ``hop_ms`` is each service's increment (its output's arrival minus its input's
+and the sim publishes a state right after each applied command (``--state-on-command``:
+states at the input rate; the ``--state-rate`` ones only fill pauses), so the last hop's
+arrival is "command applied in the sim". ``hop_ms`` is each service's increment (its output's arrival minus its input's
 arrival; for retarget, minus ``t0``): one bus hop plus the service's hand-off and work.
 ``drops`` says where frames were lost: each service's own mailbox drops (``dropped``)
 and the samples it never received (``gaps``: numbers skipped by its publishers, i.e.
@@ -54,9 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--solver-args", default="", help="extra solver flags, e.g. '--qp daqp' (after the bench's '--trigger event')"
     )
-    p.add_argument(
-        "--sim-args", default="", help="extra sim flags (after the bench's '--state-on-command --state-rate RATE')"
-    )
+    p.add_argument("--sim-args", default="", help="extra sim flags (after the bench's '--state-on-command')")
     p.add_argument("--warmup", type=float, default=1.0, help="seconds of frames before measuring")
 
 
@@ -88,7 +86,7 @@ def run(args: argparse.Namespace) -> dict:
     endpoint = f"tcp/127.0.0.1:{port}"
     extra = {
         "solver": ["--trigger", "event", *args.solver_args.split()],
-        "sim": ["--state-on-command", "--state-rate", str(args.rate), *args.sim_args.split()],
+        "sim": ["--state-on-command", *args.sim_args.split()],
     }
     n_total = int((args.duration + args.warmup) * args.rate)
     clip, idx = _frames(n_total, args.rate)
