@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from services.solver.algorithms import ALGORITHMS, USES_QP
 from services.solver.core import SolverConfig, SolverCore
+from services.solver.registry import ALGORITHMS, USES_QP
 from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
 from shared.report import emit_json
 from shared.robot.pinocchio_model import RobotModel, build_robot_model

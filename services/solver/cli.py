@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from services.solver.algorithms import ALGORITHMS
 from services.solver.qp import QP_BACKENDS
+from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
 
 

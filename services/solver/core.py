@@ -4,14 +4,22 @@ One :meth:`SolverCore.step` per control tick: take the newest targets and
 measured joints (either may be None), sample the targets at the tick time,
 build the three priority levels (wrists, elbows, posture), solve joint
 velocities with the chosen algorithm, integrate, smooth and return the
-:class:`~shared.messages.JointCommand`. Every command respects the position
-and velocity limits: a failed solve holds the previous safe position, and a
-final clamp (counted) is the last safety net.
+:class:`~shared.messages.JointCommand`.
+
+Every step covers the real time elapsed since the previous one (clamped to
+``[MIN_STEP, MAX_STEP_TICKS / rate]``), whether the caller ticks at the rate,
+on every target arrival (``--trigger event``) or late after a stall: the bounds
+and the integration use that time, so the command never moves faster than the
+limits allow over wall-clock time. Every command respects the position,
+velocity and acceleration limits (``bounds.JointBounds`` at every level of every
+algorithm, and the smoother's own limiter): a failed solve brakes as hard as the
+limits allow, and a final clamp (counted) is the last safety net.
 
 The command integrates its own state; the measured joints initialise it (so a
-solver started mid-stream continues from where the robot is, without a jump)
-and re-anchor it when command and robot drift apart by more than
-``resync_threshold`` (the robot was blocked, or the sim restarted).
+solver started mid-stream continues from where the robot is, without a jump),
+bound it to ``max_command_lead`` around them, and with ``closed_loop``
+re-anchor it when command and robot drift apart by more than
+``resync_threshold`` (the sim restarted).
 """
 
 from __future__ import annotations
@@ -21,24 +29,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.solver.algorithms import make_algorithm
-from services.solver.quintic import QuinticSmoother
+from services.solver.base import Solution
+from services.solver.bounds import JointBounds
+from services.solver.quintic import RAW_AMAX_FRACTION, RAW_VMAX_FRACTION, QuinticSmoother
+from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
-from shared.kinematics import (
-    Configuration,
-    ConfigurationLimit,
-    FrameTask,
-    PositionTask,
-    PostureTask,
-    VelocityLimit,
-)
+from shared.kinematics import Configuration, FrameTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
 
 WRISTS = ("left_wrist", "right_wrist")
+ELBOWS = ("left_elbow", "right_elbow")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
-ELBOWS = ("left_elbow", "right_elbow")
+#: Shortest step [s] a tick accounts for (ticks closer than this still move by it: 1e-4 s at vmax = 4e-4 rad).
+MIN_STEP = 1e-4
+#: Longest step, in nominal ticks: after a stall the next tick moves as if at most this much time passed.
+MAX_STEP_TICKS = 2.0
 
 
 @dataclass
@@ -70,7 +77,13 @@ class SolverConfig:
             reachable targets (tests/evaluation); 1e-5 brings that to 0.03 mm and 0.14 deg.
         smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
-        resync_threshold: re-anchor on the measured joints beyond this drift [rad].
+        resync_threshold: with ``closed_loop``, re-anchor on the measured joints beyond this drift [rad].
+        closed_loop: re-anchor (reset) on the measured joints when they drift beyond ``resync_threshold``.
+        max_command_lead: the command is kept within this distance [rad] of the measured joints (a
+            braking window around them, see ``bounds``), so a blocked arm is not commanded far from
+            where it is; None = off. Below ``resync_threshold``: the window handles a blocked arm,
+            the resync a robot that jumped (a sim restart).
+        measured_timeout: measured joints older than this [s] no longer bound the command.
         infeasible_tol: level-1 residual above which the status is ``infeasible``.
         wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
             2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
@@ -100,6 +113,9 @@ class SolverConfig:
     target_horizon: float = 0.05
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
+    closed_loop: bool = False
+    max_command_lead: float | None = 0.15
+    measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
 
@@ -108,6 +124,8 @@ class SolverConfig:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
         if self.wrist_orientation_level not in (1, 2, 3):
             raise ValueError(f"wrist_orientation_level must be 1 (paper), 2 or 3, got {self.wrist_orientation_level}")
+        if self.max_command_lead is not None and not self.max_command_lead > 0:
+            raise ValueError(f"max_command_lead must be > 0 [rad] or None, got {self.max_command_lead}")
 
     @property
     def dt(self) -> float:
@@ -115,7 +133,7 @@ class SolverConfig:
 
 
 class SolverCore:
-    """Fixed-rate joint command generator for one robot.
+    """Joint command generator for one robot, stepped at any rate.
 
     Args:
         robot: reduced robot model (14 or 17 joints).
@@ -129,6 +147,38 @@ class SolverCore:
         self.dt = cfg.dt
         self.n = robot.nq
         self.configuration = Configuration(robot)
+        self._build_levels(cfg)
+        #: The published command's limits; the raw solution keeps headroom inside them for the smoother.
+        self.limits = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax)
+        fv, fa = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION) if cfg.smoothing else (1.0, 1.0)
+        self.bounds = JointBounds(robot.lower, robot.upper, fv * robot.vmax, fa * robot.amax)
+        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.smoother = (
+            QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks, limits=self.limits) if cfg.smoothing else None
+        )
+        self.q_raw = robot.q_rest.copy()  # the solver's own integrated state
+        self.qd_raw = np.zeros(self.n)  # its velocity (the acceleration limit's reference)
+        self.q_out = robot.q_rest.copy()  # last published position
+        self.qd_out = np.zeros(self.n)
+        self.initialised = False
+        self.last_step = self.dt  # [s] the time the last tick covered
+        self._t_last: float | None = None
+        self._measured: np.ndarray | None = None
+        self._t_measured = -np.inf
+        self._window = (np.empty(self.n), np.empty(self.n))
+        self._joints = list(robot.joint_names)  # shared by every command (never mutated)
+        self.counts = {
+            "ticks": 0,
+            "failed": 0,
+            "safety_clamps": 0,
+            "smoothing_limited": 0,
+            "resyncs": 0,
+            "qp_calls": 0,
+        }
+
+    def _build_levels(self, cfg: SolverConfig) -> None:
+        """The tasks and the priority levels of ``cfg.wrist_orientation_level``."""
+        robot = self.robot
         gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
         self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, gain) for e in ELBOWS]
         self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
@@ -137,29 +187,20 @@ class SolverCore:
             self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, gain) for w in WRISTS]
             self.orientation_tasks: list[FrameTask] = []
             self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
+            return
+        # Wrist positions, elbows, then wrist orientations: position and swivel use the
+        # shoulder/elbow, orientation what is left (mostly the wrist joints), so
+        # independently mapped orientations cannot spoil the wrist and elbow positions.
+        # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
+        # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
+        self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
+        og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
+        self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
+        if cfg.wrist_orientation_level == 2:
+            # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
+            self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
         else:
-            # Wrist positions, elbows, then wrist orientations: position and swivel use the
-            # shoulder/elbow, orientation what is left (mostly the wrist joints), so
-            # independently mapped orientations cannot spoil the wrist and elbow positions.
-            # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
-            # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
-            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
-            og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
-            self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
-            if cfg.wrist_orientation_level == 2:
-                # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
-                self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
-            else:
-                self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
-        self.limits = [ConfigurationLimit(robot.lower, robot.upper), VelocityLimit(robot.vmax)]
-        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
-        self.smoother = QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks) if cfg.smoothing else None
-        self.q_raw = robot.q_rest.copy()  # the solver's own integrated state
-        self.q_out = robot.q_rest.copy()  # last published position
-        self.qd_out = np.zeros(self.n)
-        self.initialised = False
-        self._joints = list(robot.joint_names)  # shared by every command (never mutated)
-        self.counts = {"ticks": 0, "failed": 0, "safety_clamps": 0, "smoothing_clamps": 0, "resyncs": 0, "qp_calls": 0}
+            self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
 
     # ------------------------------------------------------------------ state
 
@@ -167,6 +208,7 @@ class SolverCore:
         """Restart from q (n,) [rad] at rest (clipped into the position limits)."""
         q = self.robot.clip(np.asarray(q, dtype=float))
         self.q_raw[:] = q
+        self.qd_raw[:] = 0.0
         self.q_out[:] = q
         self.qd_out[:] = 0.0
         if self.smoother is not None:
@@ -181,10 +223,42 @@ class SolverCore:
             raise ValueError(f"measured q must be ({self.n},) finite, got shape {q.shape}")
         return q
 
+    def _elapsed(self, t: float) -> float:
+        """Time [s] this tick covers: the real time since the last tick, clamped to a sane range."""
+        dt = self.dt if self._t_last is None else min(max(t - self._t_last, MIN_STEP), MAX_STEP_TICKS * self.dt)
+        self._t_last = t
+        self.last_step = dt
+        return dt
+
+    def _anchor(self, measured: np.ndarray | None, t: float) -> None:
+        """Start from the measured joints (or rest); keep them for the lead window; resync when they jumped."""
+        if measured is not None:
+            self._measured = measured
+            self._t_measured = t
+        if not self.initialised:
+            self.reset(self.robot.q_rest if measured is None else measured)
+        elif (
+            measured is not None
+            and self.config.closed_loop
+            and np.max(np.abs(measured - self.q_out)) > self.config.resync_threshold
+        ):
+            self.counts["resyncs"] += 1
+            self.reset(measured)
+
+    def _lead_window(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi) (n,) [rad] around fresh measured joints, or None (off, none yet, or stale)."""
+        lead = self.config.max_command_lead
+        if lead is None or self._measured is None or t - self._t_measured > self.config.measured_timeout:
+            return None
+        lo, hi = self._window
+        np.subtract(self._measured, lead, out=lo)
+        np.add(self._measured, lead, out=hi)
+        return lo, hi
+
     # ------------------------------------------------------------------ tick
 
     def step(self, targets: TaskTargets | None, measured_q: np.ndarray | None, t: float) -> JointCommand:
-        """One control tick at solver time t [s].
+        """One control tick at solver time t [s] (monotonic; the step covers the time since the last tick).
 
         Args:
             targets: newest TaskTargets since the last tick, or None.
@@ -192,13 +266,8 @@ class SolverCore:
             t: monotonic solver time [s].
         """
         t_start = time.perf_counter()
-        cfg = self.config
-        measured = self._check_measured(measured_q)
-        if not self.initialised:
-            self.reset(self.robot.q_rest if measured is None else measured)
-        elif measured is not None and np.max(np.abs(measured - self.q_out)) > cfg.resync_threshold:
-            self.counts["resyncs"] += 1
-            self.reset(measured)
+        self._anchor(self._check_measured(measured_q), t)
+        dt = self._elapsed(t)
         if targets is not None:
             self.tracker.update(targets, t)
         self.counts["ticks"] += 1
@@ -206,50 +275,62 @@ class SolverCore:
             # Hold the pose we started from until the first targets arrive.
             self.qd_out[:] = 0.0
             return self._command("init", [], 0, 0, "waiting for targets", t_start, t)
-
-        conf = self.configuration
-        conf.update(self.q_raw)
+        self.configuration.update(self.q_raw)
         held = self._set_targets(t)
-        sol = self.algorithm.solve(conf, self.levels, self.limits, self.dt)
+        lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
+        sol = self.algorithm.solve(self.configuration, self.levels, lb, ub)
         self.counts["qp_calls"] += sol.qp_calls
-        lb, ub = self.algorithm.last_bounds  # the bounds this tick's solve used (same q, same dt)
-        reason = sol.reason
-        if sol.ok and np.all(np.isfinite(sol.qd)):
-            qd = sol.qd
-            if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
-                self.counts["safety_clamps"] += 1
-                reason = (reason + "; " if reason else "") + "safety clamp"
-            qd = np.minimum(np.maximum(qd, lb), ub)
-            if held:
-                status = "held"
-                reason = "; ".join([*held, reason] if reason else held)
-            elif sol.residuals and sol.residuals[0] > cfg.infeasible_tol:
-                status = "infeasible"
-                why = (
-                    f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {cfg.infeasible_tol:g}: "
-                    "target out of reach or faster than the joint limits allow"
-                )
-                reason = f"{why}; {reason}" if reason else why
-            else:
-                status = "ok"
-        else:
-            self.counts["failed"] += 1
-            qd = np.zeros(self.n)
-            status = "failed"
-            reason = reason or "solution not finite"
-        q_next = self.q_raw + qd * self.dt
-        np.minimum(np.maximum(q_next, self.robot.lower, out=q_next), self.robot.upper, out=self.q_raw)
-        q_prev = self.q_out.copy()
-        if self.smoother is not None:
-            self.smoother.step(self.q_raw, qd)
-            if self.smoother.clamp(q_prev, self.robot.lower, self.robot.upper, self.robot.vmax):
-                self.counts["smoothing_clamps"] += 1
-            self.q_out[:] = self.smoother.p
-            self.qd_out[:] = self.smoother.v
-        else:
-            self.q_out[:] = self.q_raw
-            self.qd_out[:] = qd
+        qd, reason = self._checked_velocity(sol, lb, ub)
+        status, reason = self._status(sol, held, reason)
+        self._integrate(qd, dt)
+        self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
+
+    def _checked_velocity(self, sol: Solution, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray | None, str]:
+        """The solution's qd within [lb, ub], or None when it failed; the reason text so far."""
+        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+            self.counts["failed"] += 1
+            return None, sol.reason or "solution not finite"
+        qd = sol.qd
+        reason = sol.reason
+        if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
+            self.counts["safety_clamps"] += 1
+            reason = (reason + "; " if reason else "") + "safety clamp"
+        return np.minimum(np.maximum(qd, lb), ub), reason
+
+    def _status(self, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
+        """Command status and its reason: failed, held, infeasible (level-1 residual) or ok."""
+        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+            return "failed", reason
+        if held:
+            return "held", "; ".join([*held, reason] if reason else held)
+        if sol.residuals and sol.residuals[0] > self.config.infeasible_tol:
+            why = (
+                f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {self.config.infeasible_tol:g}: "
+                "target out of reach or faster than the joint limits allow"
+            )
+            return "infeasible", f"{why}; {reason}" if reason else why
+        return "ok", reason
+
+    def _integrate(self, qd: np.ndarray | None, dt: float) -> None:
+        """q_raw += qd dt; a failed solve (qd None) brakes as hard as the bounds allow."""
+        if qd is None:
+            qd = np.minimum(np.maximum(0.0, self.bounds.lb), self.bounds.ub)
+        q_next = self.q_raw + qd * dt
+        np.minimum(np.maximum(q_next, self.robot.lower, out=q_next), self.robot.upper, out=self.q_raw)
+        self.qd_raw[:] = qd
+
+    def _publish_state(self, qd: np.ndarray | None, dt: float) -> None:
+        """The published q, qd: the smoothed trajectory, or the raw one without smoothing."""
+        if self.smoother is None:
+            self.q_out[:] = self.q_raw
+            self.qd_out[:] = self.qd_raw
+            return
+        clamped = self.smoother.step(self.q_raw, self.qd_raw, dt)
+        self.counts["smoothing_limited"] += self.smoother.limited > 0
+        self.counts["safety_clamps"] += clamped > 0
+        self.q_out[:] = self.smoother.p
+        self.qd_out[:] = self.smoother.v
 
     def _set_targets(self, t: float) -> list[str]:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""

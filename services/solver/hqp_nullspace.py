@@ -24,37 +24,27 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.solver.algorithm import (
+from services.solver.active_set import refine_on_active_set
+from services.solver.base import (
     QP_BOUND_TOL,
-    Algorithm,
     Solution,
     clip,
     count_active,
     level_residuals,
-    level_value,
-    polish,
+    violation,
     within,
 )
+from services.solver.cascade import RETRY_EPS, CascadeQp
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
-#: Regularisation of the one retry of a level whose QP failed.
-RETRY_EPS = 1e-6
 
-
-class HqpNullspace(Algorithm):
+class HqpNullspace(CascadeQp):
     """Null-space recursive HQP.
 
     Args:
-        backend: QP backend for levels whose unconstrained optimum breaks a bound.
-        eps: damping of each level (one value, or one per level; the last repeats): ``eps ||z||^2`` in
-            its objective (the shortcut and the
-            QP solve the same damped problem). Tiny (1e-9) gives the exact lexicographic
-            optimum; the service uses about 1e-4 so near-singular directions of a level do
-            not ask for huge joint velocities.
+        backend, eps, refine: see :class:`CascadeQp` (the shortcut and the QP solve the same damped problem).
         shortcut: try the unconstrained optimum before calling the QP.
-        polish: refine each QP solution on its active set (see ``polish``); default: only for
-            PIQP, whose interior-point answer is tolerance-limited (DAQP's active set is exact).
     """
 
     name = "hqp-nullspace"
@@ -64,12 +54,9 @@ class HqpNullspace(Algorithm):
         backend: QpBackend,
         eps: float | Sequence[float] = 1e-9,
         shortcut: bool = True,
-        polish: bool | None = None,
+        refine: bool | None = None,
     ) -> None:
-        super().__init__()
-        self.polish = backend.name == "piqp" if polish is None else polish
-        self.backend = backend
-        self.eps = eps
+        super().__init__(backend, eps, refine)
         self.shortcut = shortcut
 
     def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
@@ -88,7 +75,7 @@ class HqpNullspace(Algorithm):
             split = split_row_space(M)
             xt = None
             if self.shortcut:
-                z = split.lstsq(c, self._eps(k))
+                z = split.lstsq(c, self.level_eps(k))
                 xt = x + (z if Z is None else Z @ z)
                 if not within(xt, lb, ub):
                     xt = None
@@ -104,7 +91,7 @@ class HqpNullspace(Algorithm):
                 xt = x + (z if Z is None else Z @ z)
                 # Within the QP's own tolerance: snap onto the box.
                 if not within(xt, lb, ub, QP_BOUND_TOL):
-                    reason = f"level {k + 1} QP left the box by {self._violation(xt, lb, ub):.2e}"
+                    reason = f"level {k + 1} QP left the box by {violation(xt, lb, ub):.2e}"
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, reason)
                     break
@@ -118,15 +105,15 @@ class HqpNullspace(Algorithm):
         """QP of one level in z: ``min ||M z - c||^2 + eps ||z||^2``, ``lo <= Z z <= hi`` (Z None = identity).
 
         A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
-        once with ``RETRY_EPS`` regularisation and polished, which removes that bias again.
+        once with ``RETRY_EPS`` regularisation and refined on its active set, which removes that bias again.
 
         Returns:
             (z or None, iterations, status text).
         """
         iters = 0
         status = ""
-        eps0 = self._eps(k)
-        for eps, refine in ((eps0, self.polish), (max(RETRY_EPS, eps0), True)):
+        eps0 = self.level_eps(k)
+        for eps, refine in ((eps0, self.refine), (max(RETRY_EPS, eps0), True)):
             H = M.T @ M
             H.flat[:: H.shape[0] + 1] += eps
             f = -(M.T @ c)
@@ -137,12 +124,5 @@ class HqpNullspace(Algorithm):
             iters += r.iters
             status = r.status
             if r.ok:
-                return (polish(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
+                return (refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
         return None, iters, status
-
-    def _eps(self, k: int) -> float:
-        return level_value(self.eps, k)
-
-    @staticmethod
-    def _violation(x: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
-        return float(max(np.max(lb - x), np.max(x - ub), 0.0))

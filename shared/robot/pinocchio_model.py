@@ -20,6 +20,7 @@ class RobotModel:
         joint_names: (n,) controlled joints, solver order (``model`` order).
         lower, upper: (n,) position limits [rad], shrunk by the profile margin.
         vmax: (n,) velocity limits [rad/s] (URDF value capped by the profile).
+        amax: (n,) acceleration limits [rad/s^2] (the profile's).
         q_rest: (n,) rest pose [rad].
         frame_ids: target name -> Pinocchio frame id.
     """
@@ -31,6 +32,7 @@ class RobotModel:
     lower: np.ndarray
     upper: np.ndarray
     vmax: np.ndarray
+    amax: np.ndarray
     q_rest: np.ndarray
     frame_ids: dict[str, int]
 
@@ -103,4 +105,5 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
         if not reduced.existFrame(frame):
             raise KeyError(f"profile {prof.name}: frame {frame!r} for {target} not in URDF")
         frame_ids[target] = reduced.getFrameId(frame)
-    return RobotModel(prof, reduced, reduced.createData(), names, lower, upper, vmax, q_rest, frame_ids)
+    amax = np.full(len(names), prof.max_joint_acceleration)
+    return RobotModel(prof, reduced, reduced.createData(), names, lower, upper, vmax, amax, q_rest, frame_ids)

@@ -30,6 +30,7 @@ class RobotProfile:
         human: target name -> canonical human bone.
         rest: joint name -> rest angle [rad] (unlisted joints rest at 0).
         max_joint_velocity: cap on every joint speed [rad/s].
+        max_joint_acceleration: cap on every joint acceleration [rad/s^2].
         limit_margin: shrink of each position limit [rad].
         actuators: MuJoCo servo parameters (kp, kv, armature).
     """
@@ -45,6 +46,7 @@ class RobotProfile:
     human: dict[str, str]
     rest: dict[str, float]
     max_joint_velocity: float
+    max_joint_acceleration: float
     limit_margin: float
     actuators: dict[str, float] = field(default_factory=dict)
     source: Path | None = None
@@ -107,6 +109,7 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
             human=human,
             rest={k: float(v) for k, v in raw.get("rest", {}).items()},
             max_joint_velocity=float(model.get("max_joint_velocity", 3.0)),
+            max_joint_acceleration=float(model["max_joint_acceleration"]),
             limit_margin=float(model.get("limit_margin", 0.0)),
             actuators={k: float(v) for k, v in raw.get("actuators", {}).items()},
             source=path,
