@@ -24,6 +24,7 @@ re-anchor it when command and robot drift apart by more than
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -31,7 +32,7 @@ import numpy as np
 
 from services.solver.base import Solution
 from services.solver.bounds import JointBounds
-from services.solver.quintic import RAW_AMAX_FRACTION, RAW_VMAX_FRACTION, QuinticSmoother
+from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
 from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
 from shared.kinematics import Configuration, FrameTask, PositionTask, PostureTask
@@ -78,6 +79,9 @@ class SolverConfig:
         smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
         resync_threshold: with ``closed_loop``, re-anchor on the measured joints beyond this drift [rad].
+        task_acceleration: acceleration [m/s^2] the wrist (level-1) errors are closed with at
+            most: their gain is capped so the demanded speed can still be braked to zero at the error
+            (see ``SolverCore._shape_gains``; the joints' own acceleration limit is the hard one).
         closed_loop: re-anchor (reset) on the measured joints when they drift beyond ``resync_threshold``.
         max_command_lead: the command is kept within this distance [rad] of the measured joints (a
             braking window around them, see ``bounds``), so a blocked arm is not commanded far from
@@ -114,6 +118,7 @@ class SolverConfig:
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     closed_loop: bool = False
+    task_acceleration: float = 5.0
     max_command_lead: float | None = 0.15
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
@@ -150,8 +155,9 @@ class SolverCore:
         self._build_levels(cfg)
         #: The published command's limits; the raw solution keeps headroom inside them for the smoother.
         self.limits = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax)
-        fv, fa = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION) if cfg.smoothing else (1.0, 1.0)
-        self.bounds = JointBounds(robot.lower, robot.upper, fv * robot.vmax, fa * robot.amax)
+        fv, fa, m = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION, RAW_POSITION_MARGIN) if cfg.smoothing else (1, 1, 0)
+        m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
+        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.smoother = (
             QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks, limits=self.limits) if cfg.smoothing else None
@@ -179,7 +185,7 @@ class SolverCore:
     def _build_levels(self, cfg: SolverConfig) -> None:
         """The tasks and the priority levels of ``cfg.wrist_orientation_level``."""
         robot = self.robot
-        gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
+        self._gain = gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
         self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, gain) for e in ELBOWS]
         self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
         if cfg.wrist_orientation_level == 1:
@@ -187,6 +193,7 @@ class SolverCore:
             self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, gain) for w in WRISTS]
             self.orientation_tasks: list[FrameTask] = []
             self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
+            self._position_tasks = list(self.wrist_tasks)
             return
         # Wrist positions, elbows, then wrist orientations: position and swivel use the
         # shoulder/elbow, orientation what is left (mostly the wrist joints), so
@@ -196,6 +203,7 @@ class SolverCore:
         self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
         og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
         self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
+        self._position_tasks = list(self.wrist_tasks)
         if cfg.wrist_orientation_level == 2:
             # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
             self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
@@ -277,6 +285,7 @@ class SolverCore:
             return self._command("init", [], 0, 0, "waiting for targets", t_start, t)
         self.configuration.update(self.q_raw)
         held = self._set_targets(t)
+        self._shape_gains()
         lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
         sol = self.algorithm.solve(self.configuration, self.levels, lb, ub)
         self.counts["qp_calls"] += sol.qp_calls
@@ -317,7 +326,7 @@ class SolverCore:
         if qd is None:
             qd = np.minimum(np.maximum(0.0, self.bounds.lb), self.bounds.ub)
         q_next = self.q_raw + qd * dt
-        np.minimum(np.maximum(q_next, self.robot.lower, out=q_next), self.robot.upper, out=self.q_raw)
+        np.minimum(np.maximum(q_next, self.bounds.lower, out=q_next), self.bounds.upper, out=self.q_raw)
         self.qd_raw[:] = qd
 
     def _publish_state(self, qd: np.ndarray | None, dt: float) -> None:
@@ -331,6 +340,22 @@ class SolverCore:
         self.counts["safety_clamps"] += clamped > 0
         self.q_out[:] = self.smoother.p
         self.qd_out[:] = self.smoother.v
+
+    def _shape_gains(self) -> None:
+        """Wrist (level 1) gains that ask for no more than the wrists can brake from.
+
+        A proportional velocity demand ``gain * e`` under an acceleration limit overshoots: it
+        asks to keep speed until the error is nearly gone and then cannot stop (60 % overshoot on
+        a 5 cm step at gain 200). The demand is capped at the braking speed ``sqrt(2 a e)`` with
+        ``a = task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
+        errors (below 2 a / gain^2, 0.25 mm at the defaults), braking in time for large ones.
+        """
+        a2 = 2.0 * self.config.task_acceleration
+        conf = self.configuration
+        for task in self._position_tasks:
+            e = task.p_target - conf.get_frame_pose(task.frame)[0]
+            e2 = float(e @ e)
+            task.gain = self._gain if e2 * self._gain**4 <= a2 * a2 else min(self._gain, (a2 / math.sqrt(e2)) ** 0.5)
 
     def _set_targets(self, t: float) -> list[str]:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""

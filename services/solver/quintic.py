@@ -34,6 +34,8 @@ BRAKE_DECEL = 0.8
 #: against about 1 in 150 ticks when the raw trajectory runs at the full limits).
 RAW_VMAX_FRACTION = 0.95
 RAW_AMAX_FRACTION = 0.5
+#: ... and this much [rad] of each position limit: the smoother reaches a stop a little after its input.
+RAW_POSITION_MARGIN = 0.01
 
 
 def quintic_coefficients(
