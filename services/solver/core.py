@@ -118,7 +118,7 @@ class SolverConfig:
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     closed_loop: bool = False
-    task_acceleration: float = 5.0
+    task_acceleration: float = 30.0
     max_command_lead: float | None = 0.15
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
@@ -345,10 +345,10 @@ class SolverCore:
         """Wrist (level 1) gains that ask for no more than the wrists can brake from.
 
         A proportional velocity demand ``gain * e`` under an acceleration limit overshoots: it
-        asks to keep speed until the error is nearly gone and then cannot stop (60 % overshoot on
-        a 5 cm step at gain 200). The demand is capped at the braking speed ``sqrt(2 a e)`` with
+        asks to keep speed until the error is nearly gone and then cannot stop (a 0.05 rad joint step
+        at gain 200 and 100 rad/s^2 overshoots by half). The demand is capped at the braking speed ``sqrt(2 a e)`` with
         ``a = task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
-        errors (below 2 a / gain^2, 0.25 mm at the defaults), braking in time for large ones.
+        errors (below 2 a / gain^2, 1.5 mm at the defaults), braking in time for large ones.
         """
         a2 = 2.0 * self.config.task_acceleration
         conf = self.configuration

@@ -28,6 +28,8 @@ from services.solver.bounds import JointBounds
 #: Fraction of a_max the smoother plans its braking before a position limit with: the headroom covers
 #: a quintic piece covering more distance than the constant-velocity step the braking bound assumes.
 BRAKE_DECEL = 0.8
+#: Crossing of the lambda interval ends accepted as round-off.
+LAMBDA_SLACK = 1e-9
 #: Headroom the raw trajectory leaves the smoother: its velocity and acceleration bounds are these
 #: fractions of the limits. The smoother lags and overshoots its input a little; with this headroom
 #: the limiter always finds a segment end within the limits (0 clamps in 15 000 violent test ticks,
@@ -178,8 +180,9 @@ class QuinticSmoother:
         both = np.maximum(lam_lo, ahead_lo) <= np.minimum(lam_hi, ahead_hi)
         lam_lo = np.where(both, np.maximum(lam_lo, ahead_lo), lam_lo)
         lam_hi = np.where(both, np.minimum(lam_hi, ahead_hi), lam_hi)
-        feasible = lam_lo <= lam_hi
-        lam = np.minimum(np.maximum(1.0, lam_lo), lam_hi)
+        # A joint resting on its stop pins lambda from both sides; round-off may cross them by ~1e-16.
+        feasible = lam_lo <= lam_hi + LAMBDA_SLACK
+        lam = np.minimum(np.maximum(1.0, lam_lo), np.maximum(lam_hi, lam_lo))
         lam[~feasible] = 0.0
         p0_bad = p0[idx]  # fancy indexing copies: kept for the clamp below
         S[:3] = nxt
