@@ -200,7 +200,7 @@ class SolverCore:
         # independently mapped orientations cannot spoil the wrist and elbow positions.
         # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
         # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
-        self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
+        self.wrist_tasks = [PositionTask(w, cfg.wrist_position_cost, gain) for w in WRISTS]
         og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
         self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
         self._position_tasks = list(self.wrist_tasks)
@@ -360,35 +360,29 @@ class SolverCore:
     def _set_targets(self, t: float) -> list[str]:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""
         conf = self.configuration
+        samples = {name: self.tracker.sample(name, t) for name in (*WRISTS, *ELBOWS)}
         missing: list[str] = []
         held: list[str] = []
-        for task in self.wrist_tasks:
-            s = self.tracker.sample(task.frame, t)
+        for task in (*self.wrist_tasks, *self.elbow_tasks):
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 missing.append(task.frame)
                 continue
-            task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
-            if not self.orientation_tasks:
+            if isinstance(task, FrameTask):  # the paper's hierarchy: full wrist poses on level 1
+                task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
                 task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+            else:
+                task.set_target(s.p, s.v, check=False)
             if s.held:
                 held.append(task.frame)
         for task in self.orientation_tasks:
-            s = self.tracker.sample(task.frame, t)
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)
             task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
-        for task in self.elbow_tasks:
-            s = self.tracker.sample(task.frame, t)
-            if s is None:
-                task.set_target_from_configuration(conf)
-                missing.append(task.frame)
-                continue
-            task.set_target(s.p, s.v, check=False)
-            if s.held:
-                held.append(task.frame)
         why: list[str] = []
         if self.tracker.stale(t):
             why.append(f"targets stale (none for {self.tracker.timeout:g} s): holding")

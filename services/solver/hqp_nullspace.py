@@ -2,8 +2,9 @@
 
     x = 0; Z = I
     for each level k:
-        z* = argmin ||A_k (x + Z z) - b_k||^2 + eps ||z||^2   s.t.  lb <= x + Z z <= ub
-        x = x + Z z*
+        x0 = x + Z Z^T (mid - x)               (nearest the box centre mid = (lb + ub) / 2)
+        w* = argmin ||A_k (x0 + Z w) - b_k||^2 + eps ||w||^2   s.t.  lb <= x0 + Z w <= ub
+        x = x0 + Z w*
         Z = Z null(A_k Z)        (column-pivoted QR, rank-revealing)
 
 Each level only moves inside the null space of every level above it, so it can
@@ -62,33 +63,40 @@ class HqpNullspace(CascadeQp):
     def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
         n = lb.shape[0]
         x = np.zeros(n)
+        # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
+        # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
+        # unconstrained optimum out of it (a QP on every tick instead of a few).
+        mid = 0.5 * (lb + ub)
         Z: np.ndarray | None = None  # None means identity (first level)
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
             if Z is not None and Z.shape[1] == 0:
                 break  # no freedom left for lower levels
+            # This level moves x + Z w around base, the point of x + range(Z) nearest the box centre.
             if Z is None:
-                M, c = A, b
+                base, M = mid, A
             else:
-                M, c = A @ Z, b - A @ x
+                base = x + Z @ (Z.T @ (mid - x))
+                M = A @ Z
+            c = b - A @ base
             split = split_row_space(M)
             xt = None
             if self.shortcut:
-                z = split.lstsq(c, self.level_eps(k))
-                xt = x + (z if Z is None else Z @ z)
+                w = split.lstsq(c, self.level_eps(k))
+                xt = base + (w if Z is None else Z @ w)
                 if not within(xt, lb, ub):
                     xt = None
             if xt is None:
-                z, its, status = self._level_qp(M, c, Z, lb - x, ub - x, k)
+                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k)
                 iters += its
                 calls += 1
-                if z is None:
+                if w is None:
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {status}")
                     reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
                     break
-                xt = x + (z if Z is None else Z @ z)
+                xt = base + (w if Z is None else Z @ w)
                 # Within the QP's own tolerance: snap onto the box.
                 if not within(xt, lb, ub, QP_BOUND_TOL):
                     reason = f"level {k + 1} QP left the box by {violation(xt, lb, ub):.2e}"
