@@ -261,7 +261,9 @@ def run_bench(
         "paper_ms": PAPER_MS,
     }
     big = max(robots)
-    ours = next(r for r in results if r["algo"] == "hqp-nullspace" and r["dof"] == big and r["qp"] == qps[-1])
+    # The shipped configuration's backend when it was run.
+    shipped = SolverConfig().qp if SolverConfig().qp in qps else qps[-1]
+    ours = next(r for r in results if r["algo"] == "hqp-nullspace" and r["dof"] == big and r["qp"] == shipped)
     report["goal"] = {
         "algo": "hqp-nullspace",
         "dof": big,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from services.solver.core import SolverConfig
 from services.solver.qp import QP_BACKENDS
 from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
@@ -12,7 +13,7 @@ from shared.bus import add_bus_args
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``mimic solve``."""
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="hqp-nullspace", help="solver algorithm")
-    parser.add_argument("--qp", choices=sorted(QP_BACKENDS), default="piqp", help="QP backend")
+    parser.add_argument("--qp", choices=sorted(QP_BACKENDS), default=SolverConfig.qp, help="QP backend")
     parser.add_argument("--id", default="main", help="solver id: commands go to mimic/<session>/solver/<id>/command")
     parser.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
     parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")

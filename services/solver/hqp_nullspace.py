@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import (
@@ -80,10 +81,12 @@ class HqpNullspace(CascadeQp):
                 base = x + Z @ (Z.T @ (mid - x))
                 M = A @ Z
             c = b - A @ base
-            split = split_row_space(M)
+            last = k == len(As) - 1
+            # The last level needs no null space: its damped optimum comes from the normal equations.
+            split = None if last and self.level_eps(k) > 0 else split_row_space(M)
             xt = None
             if self.shortcut:
-                w = split.lstsq(c, self.level_eps(k))
+                w = _damped_lstsq(M, c, self.level_eps(k)) if split is None else split.lstsq(c, self.level_eps(k))
                 xt = base + (w if Z is None else Z @ w)
                 if not within(xt, lb, ub):
                     xt = None
@@ -105,6 +108,8 @@ class HqpNullspace(CascadeQp):
                     break
                 clip(xt, lb, ub)
             x = xt
+            if last:
+                break
             N = split.null_basis
             Z = N if Z is None else Z @ N
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
@@ -134,3 +139,13 @@ class HqpNullspace(CascadeQp):
             if r.ok:
                 return (refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
         return None, iters, status
+
+
+def _damped_lstsq(M: np.ndarray, c: np.ndarray, eps: float) -> np.ndarray:
+    """argmin ||M w - c||^2 + eps ||w||^2 for eps > 0: (M^T M + eps I) w = M^T c (positive definite)."""
+    H = M.T @ M
+    H.flat[:: H.shape[0] + 1] += eps
+    _c, w, info = lapack.dposv(H, M.T @ c)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dposv failed with info={info}")
+    return w
