@@ -150,7 +150,8 @@ def time_solver(robot: RobotModel, algo: str, qp: str, frames: list[TaskTargets]
         cmd = core.step(msg, None, t)
         ms[k] = (time.perf_counter() - t0) * 1e3
         cpu[k] = (time.thread_time_ns() - c0) * 1e-6
-        statuses[cmd.status] = statuses.get(cmd.status, 0) + 1
+        if k >= warmup:
+            statuses[cmd.status] = statuses.get(cmd.status, 0) + 1
     ms = ms[warmup:]
     return {
         "algo": algo,
