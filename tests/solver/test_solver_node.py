@@ -192,7 +192,7 @@ def test_event_trigger_ticks_on_every_target_and_stays_within_limits(router):
         client.close()
     assert code == 0
     answered = {c.hdr.seq for c in cmds if c.hdr.seq > 0}
-    span = cmds[-1].t_cmd - cmds[0].t_cmd
-    # A 50 Hz clock would give at most 50 commands a second; on every arrival, nearly one per target.
-    assert len(answered) > 0.6 * sent and len(cmds) > 2 * 50 * span, (len(answered), sent, len(cmds), span)
+    # The 50 Hz clock alone would answer at most 100 of the targets sent in 2 s; on every arrival it
+    # answers each one it can solve in time (all of them on an idle machine).
+    assert len(answered) > 1.2 * 50 * 2.0, (len(answered), sent)
     assert_safe_over_wall_clock(robot, cmds)
