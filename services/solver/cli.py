@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-from services.solver.algorithms import ALGORITHMS
 from services.solver.core import SolverConfig
 from services.solver.qp import QP_BACKENDS
+from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
 from shared.config import add_dataclass_arguments
 from shared.robot.profile import DEFAULT_PROFILE
@@ -35,11 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_dataclass_arguments(g, SolverConfig, FLAGS, skip=("damping",))
     parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")
     parser.add_argument("--robot", default=None, help=f"robot profile name or TOML path (default {DEFAULT_PROFILE})")
-    parser.add_argument(
-        "--closed-loop",
-        action="store_true",
-        help="re-anchor on the measured joints when they drift more than the resync threshold from the command",
-    )
     parser.add_argument(
         "--trigger",
         choices=("rate", "event"),

@@ -24,9 +24,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.solver.algorithm import Algorithm, Solution, count_active, level_residuals
+from services.solver.base import Algorithm, Solution, count_active, level_residuals
 from services.solver.linalg import split_row_space
-from shared.kinematics import AlignmentTask, Configuration, JointVelocityTask, Limit, Task
+from shared.kinematics import AlignmentTask, Configuration, JointVelocityTask, Task
 
 #: Default η of eq. (3) [1/s]: near alignment the upper arm turns at about 2η times its error.
 DEFAULT_ETA = 10.0
@@ -74,12 +74,11 @@ class ClikMimicry(Algorithm):
         self.damping = damping
 
     def solve(
-        self, configuration: Configuration, levels: Sequence[Sequence[Task]], limits: Sequence[Limit], dt: float
+        self, configuration: Configuration, levels: Sequence[Sequence[Task]], lb: np.ndarray, ub: np.ndarray
     ) -> Solution:
         if not levels or not levels[0]:
             raise ValueError("at least one level with one task is needed")
         As, bs = self.stack(levels, configuration.nv).fill(configuration)
-        lb, ub = self.bounds(limits, configuration, dt)
         qd0 = secondary_velocity(configuration, [t for tasks in levels[1:] for t in tasks], self.eta)
         return self._finish(clik_step(As[0], bs[0], qd0, self.damping), As, bs, lb, ub)
 

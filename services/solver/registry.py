@@ -1,10 +1,10 @@
-"""Algorithm registry: every solver selectable by name."""
+"""Every solver algorithm by name: ``make_algorithm("hqp-nullspace", "daqp", damping)``."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from services.solver.algorithm import Algorithm
+from services.solver.base import Algorithm
 from services.solver.clik_mimicry import ClikMimicry
 from services.solver.clik_nullspace import ClikNullspace
 from services.solver.dls import DampedLeastSquares
