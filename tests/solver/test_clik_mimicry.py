@@ -6,9 +6,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from services.solver.algorithms import make_algorithm
 from services.solver.clik_mimicry import ClikMimicry, clik_step, secondary_velocity
 from services.solver.core import SolverConfig, SolverCore
+from services.solver.registry import make_algorithm
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, orientation_delta
 from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
