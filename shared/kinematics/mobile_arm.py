@@ -1,0 +1,129 @@
+"""Seed 002 section 3: the hand of a yaw-pitch-pitch arm on a moving torso, in the 7-D coordinates.
+
+Generalised coordinates ``q = [x_b, y_b, z_b, α, θ_a0, θ_a1, θ_a2]`` (7,): torso-centre
+position in Σw [m], torso heading α [rad] about the world z (pitch and roll taken as 0, as the
+seed does), and the arm's J1 (yaw), J2, J3 (pitch) angles [rad]. The hand is the origin of Σa.
+
+* eq. 1: ``p_w^h = p_w^b + R_z(α) p_b^h(θ)``, with ``p_b^h`` from the arm's PoE chain in Σb;
+* eq. 2-3: ``ṗ_w^h = J_a(q) q̇``, J_a (3, 7);
+* eq. 9's ``J̇_a q̇`` (3,): the hand's acceleration when q̈ = 0 (analytic, from the PoE
+  Jacobian derivative), so ``p̈_w^h = J_a q̈ + J̇_a q̇``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from shared.kinematics.poe import ad, adjoint, exp6, fk_space, jacobian_space, jacobian_space_dot, mixed_from_space
+
+NQ = 7
+#: Indices into q.
+BASE_XY = slice(0, 2)
+BASE = slice(0, 4)
+ARM = slice(4, 7)
+ALPHA = 3
+Z = 2
+
+
+def rot_z(alpha: float) -> np.ndarray:
+    """(3, 3) rotation about z by alpha [rad] (seed 002's R_b^w with pitch and roll 0)."""
+    c, s = math.cos(alpha), math.sin(alpha)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class MobileArmKinematics:
+    """The hand of a 3-joint arm carried by a torso that moves in x, y, z and yaw.
+
+    Args:
+        S: (6, 3) space screw axes of the arm joints in Σb ([ω; v], Modern Robotics order).
+        M: (4, 4) pose of Σa in Σb with the arm at 0 (the held wrist joints folded in).
+    """
+
+    S: np.ndarray
+    M: np.ndarray
+
+    def hand_in_torso(self, theta: np.ndarray) -> np.ndarray:
+        """p_b^h (3,) [m]: the hand in Σb."""
+        return fk_space(self.M, self.S, theta)[:3, 3]
+
+    def hand(self, q: np.ndarray) -> np.ndarray:
+        """p_w^h (3,) [m] (eq. 1)."""
+        return q[:3] + rot_z(q[ALPHA]) @ self.hand_in_torso(q[ARM])
+
+    def arm_jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(p_b^h (3,) [m], J (3, 3) [m/rad]): the hand and its linear Jacobian in Σb."""
+        p = self.hand_in_torso(theta)
+        Jm = mixed_from_space(jacobian_space(self.S, theta), p)
+        return p, Jm[3:]
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """J_a (3, 7) [m/m, m/rad]: ṗ_w^h = J_a q̇ (eqs. 2-3)."""
+        Rz = rot_z(q[ALPHA])
+        p, Jarm = self.arm_jacobian(q[ARM])
+        J = np.zeros((3, NQ))
+        J[:, :3] = np.eye(3)
+        r = Rz @ p
+        J[:, ALPHA] = (-r[1], r[0], 0.0)  # e_z × R_z p
+        J[:, ARM] = Rz @ Jarm
+        return J
+
+    def jacobian_dot_qdot(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """J̇_a q̇ (3,) [m/s^2]: the hand's acceleration in Σw at q̈ = 0 (the term of eq. 9).
+
+        ``p_w^h = p_b + R_z(α) p``: its second derivative at q̈ = 0 is
+        ``α̇² (e_z × (e_z × R_z p)) + 2 α̇ e_z × (R_z ṗ) + R_z p̈``, with ṗ = J_arm θ̇ and p̈ the arm's
+        own bias ``J̇_arm θ̇`` (space-Jacobian derivative, :func:`jacobian_space_dot`).
+        """
+        theta, dtheta = q[ARM], qd[ARM]
+        ad = qd[ALPHA]
+        Rz = rot_z(q[ALPHA])
+        Js = jacobian_space(self.S, theta)
+        p = self.hand_in_torso(theta)
+        Vs = Js @ dtheta
+        w, v = Vs[:3], Vs[3:]
+        pd = v + np.cross(w, p)
+        a = jacobian_space_dot(self.S, theta, dtheta) @ dtheta
+        pdd = a[3:] + np.cross(a[:3], p) + np.cross(w, pd)
+        ez = np.array([0.0, 0.0, 1.0])
+        r = Rz @ p
+        return ad * ad * np.cross(ez, np.cross(ez, r)) + 2.0 * ad * np.cross(ez, Rz @ pd) + Rz @ pdd
+
+    def evaluate(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p_w^h (3,), J_a (3, 7), J̇_a q̇ (3,)) in one pass over the chain (the planner's per-tick call).
+
+        Same quantities as :meth:`hand`, :meth:`jacobian` and :meth:`jacobian_dot_qdot` (the
+        tests hold them equal), with each joint exponential computed once.
+        """
+        S = self.S
+        theta, dtheta = q[ARM], qd[ARM]
+        n = S.shape[1]
+        Js = np.empty((6, n))
+        T = np.eye(4)
+        for i in range(n):
+            Js[:, i] = S[:, i] if i == 0 else adjoint(T) @ S[:, i]
+            T = T @ exp6(S[:, i] * theta[i])
+        p = (T @ self.M)[:3, 3]
+        # J̇_s θ̇ = Σ_i ad(V_{i-1}) J_si θ̇_i, V_{i-1} = Σ_{j<i} J_sj θ̇_j.
+        acc = np.zeros(6)
+        a = np.zeros(6)
+        for i in range(n):
+            a += ad(acc) @ Js[:, i] * dtheta[i]
+            acc += Js[:, i] * dtheta[i]
+        w, v = acc[:3], acc[3:]
+        pd = v + np.cross(w, p)
+        pdd = a[3:] + np.cross(a[:3], p) + np.cross(w, pd)
+        Jarm = Js[3:] + np.cross(Js[:3].T, p).T  # v + ω × p per column
+        Rz = rot_z(q[ALPHA])
+        r = Rz @ p
+        J = np.zeros((3, NQ))
+        J[0, 0] = J[1, 1] = J[2, 2] = 1.0
+        J[0, ALPHA], J[1, ALPHA] = -r[1], r[0]
+        J[:, ARM] = Rz @ Jarm
+        al = qd[ALPHA]
+        ez = np.array([0.0, 0.0, 1.0])
+        jdqd = al * al * np.array([-r[0], -r[1], 0.0]) + 2.0 * al * np.cross(ez, Rz @ pd) + Rz @ pdd
+        return q[:3] + r, J, jdqd
