@@ -147,33 +147,38 @@ class WbqpAccel:
         cfg = self.config
         return a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - v), p, v
 
-    def box(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def box(self, q: np.ndarray, qd: np.ndarray, with_eq13: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Bounds (lo, hi) (7,) on q̈ from eq. 11 (prediction in the limits) and eq. 13 (torso rows)."""
         dt = self.config.dt
         lo = (self.lower - q - qd * dt) / (dt * dt)
         hi = (self.upper - q - qd * dt) / (dt * dt)
-        b_lo = self.qdd_prev[BASE] - self.eps
-        b_hi = self.qdd_prev[BASE] + self.eps
-        lo_b = np.maximum(lo[BASE], b_lo)
-        hi_b = np.minimum(hi[BASE], b_hi)
-        # Where eq. 13 and eq. 11 disagree, the position limit wins (a box must never be left).
-        bad = lo_b > hi_b
-        lo_b[bad] = lo[BASE][bad]
-        hi_b[bad] = hi[BASE][bad]
-        lo[BASE] = lo_b
-        hi[BASE] = hi_b
-        # Joints already past a limit (measured state): the prediction bound crosses; brake to it.
+        # Joints already past a limit (measured state): the bounds cross; brake back towards the box.
         crossed = lo > hi
-        lo[crossed] = hi[crossed] = np.where(q[crossed] > self.upper[crossed], hi[crossed], lo[crossed])
+        if crossed.any():
+            mid = np.where(q > self.upper, hi, lo)
+            lo[crossed] = hi[crossed] = mid[crossed]
+        if with_eq13:
+            lo_b = np.maximum(lo[BASE], self.qdd_prev[BASE] - self.eps)
+            hi_b = np.minimum(hi[BASE], self.qdd_prev[BASE] + self.eps)
+            # Where eq. 13 and eq. 11 disagree, the position limit wins (a box must never be left).
+            ok = lo_b <= hi_b
+            lo[BASE] = np.where(ok, lo_b, lo[BASE])
+            hi[BASE] = np.where(ok, hi_b, hi[BASE])
         return lo, hi
 
     def nonholonomic_row(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
-        """(row (7,), rhs): ``row @ q̈ = rhs`` makes the predicted lateral velocity zero (eq. 12, velocity form)."""
+        """(row (7,), rhs): ``row @ q̈ = rhs`` makes the predicted lateral velocity zero (eq. 12, velocity form).
+
+        Lateral velocity after the tick: ``-sin(α') (ẋ + ẍ Δt) + cos(α') (ẏ + ÿ Δt)`` with
+        ``α' = α + α̇ Δt + α̈ Δt^2``; linear in ẍ, ÿ and (to first order) α̈.
+        """
         dt = self.config.dt
-        a = q[ALPHA] + qd[ALPHA] * dt
+        a = q[ALPHA] + qd[ALPHA] * dt  # α' at α̈ = 0
         s, c = math.sin(a), math.cos(a)
         row = np.zeros(NQ)
         row[0], row[1] = -s * dt, c * dt
+        # The predicted heading also moves with α̈ (by α̈ Δt^2): linearised about α̈ = 0.
+        row[ALPHA] = -(c * qd[0] + s * qd[1]) * dt * dt
         return row, s * qd[0] - c * qd[1]
 
     # ------------------------------------------------------------------ tick
@@ -226,12 +231,19 @@ class WbqpAccel:
             H2 = 2.0 * (JtQ @ J + dt**4 * self.R) + reg
             f2 = 2.0 * (-(JtQ @ b) + dt**3 * (self.R @ qd))
             res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
+            relaxed = ""
+            if not res.ok:
+                # Eq. 13 against eq. 12 (e.g. a turn needs a centripetal acceleration the ε bound
+                # does not allow from the previous tick's): the position limits stay, ε goes.
+                lo, hi = self.box(q, qd, with_eq13=False)
+                res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
+                relaxed = "; eq. 13 relaxed this tick"
             if res.ok:
                 resid = float(np.linalg.norm(J @ res.x - b))
                 status = "infeasible"
                 reason = (
                     f"J_a q̈ = b cannot hold within the limits and eq. 13 ({eq_status}): "
-                    f"hand task as objective, acceleration residual {resid:.3g} m/s^2"
+                    f"hand task as objective, acceleration residual {resid:.3g} m/s^2{relaxed}"
                 )
         if not res.ok:
             # No solution at all: brake every coordinate as hard as the box allows.

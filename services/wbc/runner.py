@@ -26,6 +26,8 @@ from shared.robot.wheeled import WheeledRobot, build_wheeled_robot
 
 log = logging.getLogger("mimic.wbc")
 
+#: Where the planner's q_pre, q̇_pre come from each tick (see WbcEvalConfig.feedback).
+FEEDBACK = ("position", "plan", "measured")
 #: Tolerance [rad or m] past a Table 2 joint range before a measured joint counts as a violation.
 RANGE_TOL = 1e-3
 
@@ -54,8 +56,8 @@ class WbcEvalConfig:
     balance: BalanceConfig = field(default_factory=BalanceConfig)
 
     def __post_init__(self) -> None:
-        if self.feedback not in ("plan", "measured"):
-            raise ValueError(f"feedback must be 'plan' or 'measured', got {self.feedback!r}")
+        if self.feedback not in FEEDBACK:
+            raise ValueError(f"feedback must be one of {FEEDBACK}, got {self.feedback!r}")
         if self.steady_window > self.hold:
             raise ValueError("steady_window must not exceed hold")
 
@@ -167,6 +169,8 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         p_d, v_d, a_d = min_jerk(p0, goal, cfg.duration, t)
         if cfg.feedback == "measured":
             q_plan, qd_plan = measured_q(robot, d)
+        elif cfg.feedback == "position":
+            q_plan = measured_q(robot, d)[0]
         res = planner.solve(q_plan, qd_plan, p_d, v_d, a_d)
         statuses[res.status] = statuses.get(res.status, 0) + 1
         qdd_plan = res.qdd

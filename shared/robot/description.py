@@ -38,13 +38,15 @@ class DescriptionError(ValueError):
 @dataclass(frozen=True)
 class Joint:
     """One joint: ``type`` free/hinge/slide, unit ``axis`` (3,) in the body frame, ``range`` [rad or m]
-    (None = unlimited, e.g. a wheel), ``torque`` motor limit [N m or N] (None = unactuated)."""
+    (None = unlimited, e.g. a wheel), ``torque`` motor limit [N m or N] (None = unactuated),
+    ``armature`` reflected rotor inertia [kg m^2] (MuJoCo only: Pinocchio's kinematics ignore it)."""
 
     name: str
     type: str
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     range: tuple[float, float] | None = None
     torque: float | None = None
+    armature: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -161,6 +163,7 @@ def _body(raw: dict, index: int) -> Body:
             axis=tuple(axis / np.linalg.norm(axis)),
             range=None if rng is None else (float(rng[0]), float(rng[1])),
             torque=None if "torque" not in j else float(j["torque"]),
+            armature=float(j.get("armature", 0.0)),
         )
     sites = tuple(
         Site(s["name"], _vec3(s.get("pos", (0, 0, 0)), where), float(s.get("euler_y", 0.0)))
@@ -248,7 +251,8 @@ def to_mjcf(desc: Description) -> str:
                 lines.append(f'{ind}  <freejoint name="{j.name}"/>')
             else:
                 rng = "" if j.range is None else f' limited="true" range="{_f(j.range)}"'
-                lines.append(f'{ind}  <joint name="{j.name}" type="{j.type}" axis="{_f(j.axis)}"{rng}/>')
+                arm = f' armature="{j.armature!r}"' if j.armature else ""
+                lines.append(f'{ind}  <joint name="{j.name}" type="{j.type}" axis="{_f(j.axis)}"{rng}{arm}/>')
         lines.append(f"{ind}  {_geom(b)}")
         for s in b.sites:
             c, sn = math.cos(s.euler_y / 2), math.sin(s.euler_y / 2)
