@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "log-bench": ("services.logger.bench_cli", "logger throughput benchmark (JSON)"),
     "eval": ("services.evaluation.cli", "offline evaluation of algorithms on clips (JSON + plots)"),
     "bench": ("services.evaluation.bench_cli", "benchmarks: solvers, pipeline"),
+    "wbc-eval": ("services.wbc.cli", "seed 002 section 5: wheeled-legged arm reach in MuJoCo (JSON + Fig. 2(b))"),
     "record": ("services.recorder.record_cli", "record every bus message to MCAP"),
     "replay": ("services.recorder.replay_cli", "replay an MCAP recording onto the bus"),
     "record-bench": ("services.recorder.bench_cli", "recorder loss/memory benchmark: N messages at R Hz (JSON)"),

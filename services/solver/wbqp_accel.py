@@ -86,8 +86,9 @@ class WbqpResult:
     Attributes:
         qdd: (7,) planned q̈. status: ``ok`` (hard equality held) or ``infeasible`` (section 4.1
             fallback) or ``failed`` (no QP solution: q̈ brakes within the limits). reason: why, when not ok.
-        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations. solve_ms: build + solve time [ms].
-        pref_acc: (3,) P̈ref of eq. 10 [m/s^2].
+        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations. solve_ms: build + solve wall time [ms].
+        pref_acc: (3,) P̈ref of eq. 10 [m/s^2]. cpu_ms: the same span in this thread's CPU time [ms]
+            (what the tick costs, without the time the OS gave other processes).
     """
 
     qdd: np.ndarray
@@ -97,6 +98,7 @@ class WbqpResult:
     iters: int
     solve_ms: float
     pref_acc: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cpu_ms: float = 0.0
 
 
 class WbqpAccel:
@@ -198,6 +200,7 @@ class WbqpAccel:
             p_d, v_d, a_d: desired hand position, velocity, acceleration in Σw (3,) [m, m/s, m/s^2].
         """
         t0 = time.perf_counter()
+        c0 = time.thread_time()
         cfg = self.config
         dt = cfg.dt
         v_d = np.zeros(3) if v_d is None else v_d
@@ -251,10 +254,12 @@ class WbqpAccel:
             resid = float(np.linalg.norm(J @ qdd - b))
             self.qdd_prev = qdd
             ms = (time.perf_counter() - t0) * 1e3
-            return WbqpResult(qdd, "failed", f"QP failed ({res.status}): braking", resid, res.iters, ms, pref)
+            cpu = (time.thread_time() - c0) * 1e3
+            return WbqpResult(qdd, "failed", f"QP failed ({res.status}): braking", resid, res.iters, ms, pref, cpu)
         qdd = np.minimum(np.maximum(res.x, lo), hi)  # solver tolerance only
         self.qdd_prev = qdd
-        return WbqpResult(qdd, status, reason, resid, res.iters, (time.perf_counter() - t0) * 1e3, pref)
+        ms = (time.perf_counter() - t0) * 1e3
+        return WbqpResult(qdd, status, reason, resid, res.iters, ms, pref, (time.thread_time() - c0) * 1e3)
 
 
 def predict(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

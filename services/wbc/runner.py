@@ -158,7 +158,7 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
     goal = np.array([cfg.goal_x, p0[1], cfg.goal_z])
     n = round((cfg.duration + cfg.hold) / cfg.planner.dt)
     tr = {k: np.zeros((n, 3)) for k in ("p_des", "p_sim", "p_plan")}
-    tr.update({k: np.zeros(n) for k in ("t", "vx_plan", "vx_sim", "pitch", "roll", "solve_ms", "ee_res")})
+    tr.update({k: np.zeros(n) for k in ("t", "vx_plan", "vx_sim", "pitch", "roll", "solve_ms", "cpu_ms", "ee_res")})
     tr["q_plan"] = np.zeros((n, NQ))
     statuses: dict[str, int] = {}
     violations = 0
@@ -195,6 +195,7 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         tr["pitch"][i] = pitch
         tr["roll"][i] = roll
         tr["solve_ms"][i] = res.solve_ms
+        tr["cpu_ms"][i] = res.cpu_ms
         tr["ee_res"][i] = res.ee_residual
         tr["q_plan"][i] = q_plan
     err = np.linalg.norm(tr["p_sim"] - tr["p_des"], axis=1) * 1e3
@@ -208,8 +209,11 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         "violations": int(violations),
     }
     steady_xz = np.abs(tr["p_sim"] - tr["p_des"])[steady] * 1e3
+    cpu = tr["cpu_ms"]
     info = {
         "statuses": statuses,
+        "solve_cpu_ms": {"mean": float(cpu.mean()), "p50": float(np.percentile(cpu, 50)),
+                         "p99": float(np.percentile(cpu, 99))},
         "violations_by": viol_detail,
         "ee_steady_max_mm_x": float(steady_xz[:, 0].max()),
         "ee_steady_max_mm_z": float(steady_xz[:, 2].max()),

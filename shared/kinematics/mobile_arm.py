@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.kinematics.poe import ad, adjoint, exp6, fk_space, jacobian_space, jacobian_space_dot, mixed_from_space
+from shared.kinematics.poe import adjoint, exp6, fk_space, jacobian_space, jacobian_space_dot, mixed_from_space
+from shared.rotations import cross3
 
 NQ = 7
 #: Indices into q.
@@ -107,16 +108,22 @@ class MobileArmKinematics:
             Js[:, i] = S[:, i] if i == 0 else adjoint(T) @ S[:, i]
             T = T @ exp6(S[:, i] * theta[i])
         p = (T @ self.M)[:3, 3]
-        # J̇_s θ̇ = Σ_i ad(V_{i-1}) J_si θ̇_i, V_{i-1} = Σ_{j<i} J_sj θ̇_j.
-        acc = np.zeros(6)
-        a = np.zeros(6)
+        # J̇_s θ̇ = Σ_i ad(V_{i-1}) J_si θ̇_i, V_{i-1} = Σ_{j<i} J_sj θ̇_j (ad written out: no 6x6 products).
+        wacc = np.zeros(3)
+        vacc = np.zeros(3)
+        aw = np.zeros(3)
+        av = np.zeros(3)
         for i in range(n):
-            a += ad(acc) @ Js[:, i] * dtheta[i]
-            acc += Js[:, i] * dtheta[i]
-        w, v = acc[:3], acc[3:]
-        pd = v + np.cross(w, p)
-        pdd = a[3:] + np.cross(a[:3], p) + np.cross(w, pd)
-        Jarm = Js[3:] + np.cross(Js[:3].T, p).T  # v + ω × p per column
+            wi, vi, di = Js[:3, i], Js[3:, i], dtheta[i]
+            aw += cross3(wacc, wi) * di
+            av += (cross3(vacc, wi) + cross3(wacc, vi)) * di
+            wacc += wi * di
+            vacc += vi * di
+        pd = vacc + cross3(wacc, p)
+        pdd = av + cross3(aw, p) + cross3(wacc, pd)
+        Jarm = np.empty((3, n))
+        for i in range(n):
+            Jarm[:, i] = Js[3:, i] + cross3(Js[:3, i], p)  # v + ω × p
         Rz = rot_z(q[ALPHA])
         r = Rz @ p
         J = np.zeros((3, NQ))
@@ -124,6 +131,9 @@ class MobileArmKinematics:
         J[0, ALPHA], J[1, ALPHA] = -r[1], r[0]
         J[:, ARM] = Rz @ Jarm
         al = qd[ALPHA]
-        ez = np.array([0.0, 0.0, 1.0])
-        jdqd = al * al * np.array([-r[0], -r[1], 0.0]) + 2.0 * al * np.cross(ez, Rz @ pd) + Rz @ pdd
+        rpd = Rz @ pd
+        # α̇² e_z × (e_z × r) + 2 α̇ e_z × (R_z ṗ) + R_z p̈, with e_z × u = (-u_y, u_x, 0).
+        jdqd = Rz @ pdd
+        jdqd[0] += -al * al * r[0] - 2.0 * al * rpd[1]
+        jdqd[1] += -al * al * r[1] + 2.0 * al * rpd[0]
         return q[:3] + r, J, jdqd
