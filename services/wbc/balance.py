@@ -15,9 +15,10 @@ wheels rolling on the floor, every joint torque-limited by Table 2):
   M, h, I: mass, COM height above the axle and pitch inertia (about the COM) of everything but
   the wheels; m_w, I_w: both wheels' mass and spin inertia; r: wheel radius. All are read from
   the MuJoCo model at the current configuration. Discrete LQR (ZOH at the control period) on
-  ``[x - x_ref, φ - φ_ref, ẋ - ẋ_ref, φ̇]`` with the torque and lean that hold the planned
-  acceleration as feed-forward. Gains are recomputed every ``regain_period`` (the arm moves
-  the COM).
+  ``[x_b - x_b,ref, φ - φ_ref, ẋ - ẋ_ref, φ̇]`` with the torque and lean that hold the planned
+  acceleration as feed-forward. The position state is the torso's (not the axle's) error to
+  its plan, so leg sag cannot offset the torso. Gains are recomputed every ``regain_period``
+  (the arm moves the COM).
 * **Legs: the COM leans, not the torso.** Hip pitch and knee are placed by planar 2-link IK so
   that the torso centre sits at the planned height z_b and the axle lies where the lean φ_ref
   wants it relative to the COM (``x_axle = x_com - h tan φ_ref``). The torso therefore stays
@@ -167,7 +168,7 @@ class BalanceController:
         config: BalanceConfig | None = None,
     ):
         self.m = model
-        self.cfg = cfg = config or BalanceConfig()
+        self.cfg = config or BalanceConfig()
         self.torso = model.body(torso).id
         self.wheel_bodies = [model.body(w).id for w in wheels]
         self.wheel_joints = [model.joint(w).id for w in wheels]
@@ -177,8 +178,10 @@ class BalanceController:
         self.arm = [model.joint(n).id for n in arm]
         self.held = {model.joint(n).id: v for n, v in held.items()}
         self.sides = ("left", "right")
-        self.legs = {s: [model.joint(f"{s}_hip_out").id, model.joint(f"{s}_hip_pitch").id, model.joint(f"{s}_knee").id]
-                     for s in self.sides}
+        self.legs = {
+            s: [model.joint(f"{s}_hip_out").id, model.joint(f"{s}_hip_pitch").id, model.joint(f"{s}_knee").id]
+            for s in self.sides
+        }
         self.fingers = [j for j in range(model.njnt) if model.joint(j).name.startswith("finger")]
         thigh = model.body("left_crus").pos
         self.leg_length = float(abs(thigh[2]))
@@ -213,8 +216,9 @@ class BalanceController:
         mw0, mw1 = m.body_mass[w0], m.body_mass[w1]
         M = self.total_mass - mw0 - mw1
         com = (self.total_mass * d.subtree_com[self.torso] - mw0 * d.xipos[w0] - mw1 * d.xipos[w1]) / M
-        vcom = (self.total_mass * d.subtree_linvel[self.torso] - mw0 * d.subtree_linvel[w0]
-                - mw1 * d.subtree_linvel[w1]) / M
+        vcom = (
+            self.total_mass * d.subtree_linvel[self.torso] - mw0 * d.subtree_linvel[w0] - mw1 * d.subtree_linvel[w1]
+        ) / M
         vaxle = 0.5 * (d.subtree_linvel[w0] + d.subtree_linvel[w1])  # a wheel's COM is its centre
         rel = com - axle
         h = float(rel[2])
@@ -223,8 +227,16 @@ class BalanceController:
         phi = math.atan2(dxf, h)
         phid = (float(vrel @ fwd) * h - float(vrel[2]) * dxf) / (h * h + dxf * dxf)
         out = {
-            "x": float(axle @ fwd), "phi": phi, "xd": float(vaxle @ fwd), "phid": phid,
-            "M": M, "h": h, "yaw": yaw, "pitch": pitch, "roll": roll, "com": com,
+            "x": float(axle @ fwd),
+            "phi": phi,
+            "xd": float(vaxle @ fwd),
+            "phid": phid,
+            "M": M,
+            "h": h,
+            "yaw": yaw,
+            "pitch": pitch,
+            "roll": roll,
+            "com": com,
         }
         if with_inertia:
             lat = np.array([-s, c, 0.0])

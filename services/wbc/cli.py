@@ -45,10 +45,26 @@ def plot(trace: dict, out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     t = trace["t"]
     panels = [
-        ("fig2b_1_hand_x.png", "hand x [m]", [(trace["p_des"][:, 0], "desired", "g-"), (trace["p_sim"][:, 0], "actual", "r--")]),
-        ("fig2b_2_hand_z.png", "hand z [m]", [(trace["p_des"][:, 2], "desired", "g-"), (trace["p_sim"][:, 2], "actual", "r--")]),
-        ("fig2b_3_torso_vx.png", "torso x velocity [m/s]", [(trace["vx_plan"], "planned", "g-"), (trace["vx_sim"], "actual", "r--")]),
-        ("fig2b_4_torso_attitude.png", "torso attitude [rad]", [(trace["pitch"], "pitch", "b-"), (trace["roll"], "roll", "m--")]),
+        (
+            "fig2b_1_hand_x.png",
+            "hand x [m]",
+            [(trace["p_des"][:, 0], "desired", "g-"), (trace["p_sim"][:, 0], "actual", "r--")],
+        ),
+        (
+            "fig2b_2_hand_z.png",
+            "hand z [m]",
+            [(trace["p_des"][:, 2], "desired", "g-"), (trace["p_sim"][:, 2], "actual", "r--")],
+        ),
+        (
+            "fig2b_3_torso_vx.png",
+            "torso x velocity [m/s]",
+            [(trace["vx_plan"], "planned", "g-"), (trace["vx_sim"], "actual", "r--")],
+        ),
+        (
+            "fig2b_4_torso_attitude.png",
+            "torso attitude [rad]",
+            [(trace["pitch"], "pitch", "b-"), (trace["roll"], "roll", "m--")],
+        ),
     ]
     paths = []
     for name, ylabel, series in panels:

@@ -142,12 +142,13 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
     ctrl.cfg.dt = cfg.planner.dt
     lo, hi = limits(robot)
     planner = WbqpAccel(robot.kin, lo, hi, cfg.planner)
-    q, qd = measured_q(robot, d)
+    q = measured_q(robot, d)[0]
     q_plan, qd_plan, qdd_plan = q.copy(), np.zeros(NQ), np.zeros(NQ)
 
     def reference() -> Reference:
-        return Reference(q_plan[BASE].copy(), qd_plan[BASE].copy(), qdd_plan[BASE].copy(),
-                         q_plan[ARM].copy(), qd_plan[ARM].copy())
+        return Reference(
+            q_plan[BASE].copy(), qd_plan[BASE].copy(), qdd_plan[BASE].copy(), q_plan[ARM].copy(), qd_plan[ARM].copy()
+        )
 
     # Start in dynamic balance: hold the start pose.
     for _ in range(round(cfg.settle / cfg.planner.dt)):
@@ -205,15 +206,22 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         "ee_err_mm": {"mean": float(err.mean()), "max": float(err.max()), "steady_max": float(err[steady].max())},
         "torso_vel_err_mps": {"max": float(np.max(np.abs(tr["vx_sim"] - tr["vx_plan"])))},
         "torso_att_rad": {"max": float(np.max(np.maximum(np.abs(tr["pitch"]), np.abs(tr["roll"]))))},
-        "solve_ms": {"mean": float(ms.mean()), "p50": float(np.percentile(ms, 50)), "p99": float(np.percentile(ms, 99))},
+        "solve_ms": {
+            "mean": float(ms.mean()),
+            "p50": float(np.percentile(ms, 50)),
+            "p99": float(np.percentile(ms, 99)),
+        },
         "violations": int(violations),
     }
     steady_xz = np.abs(tr["p_sim"] - tr["p_des"])[steady] * 1e3
     cpu = tr["cpu_ms"]
     info = {
         "statuses": statuses,
-        "solve_cpu_ms": {"mean": float(cpu.mean()), "p50": float(np.percentile(cpu, 50)),
-                         "p99": float(np.percentile(cpu, 99))},
+        "solve_cpu_ms": {
+            "mean": float(cpu.mean()),
+            "p50": float(np.percentile(cpu, 50)),
+            "p99": float(np.percentile(cpu, 99)),
+        },
         "violations_by": viol_detail,
         "ee_steady_max_mm_x": float(steady_xz[:, 0].max()),
         "ee_steady_max_mm_z": float(steady_xz[:, 2].max()),

@@ -221,7 +221,8 @@ def _geom(b: Body) -> str:
         )
     contact = nocontact
     if s.type == "box":
-        return f'<geom name="{b.name}_geom" type="box" size="{_f(np.array(s.size) / 2)}" pos="{_f(b.com)}" {contact}/>{extra}'
+        size = _f(np.array(s.size) / 2)
+        return f'<geom name="{b.name}_geom" type="box" size="{size}" pos="{_f(b.com)}" {contact}/>{extra}'
     half = s.length / 2
     axis = np.zeros(3)
     axis[AXES[s.axis]] = half
@@ -266,9 +267,8 @@ def to_mjcf(desc: Description) -> str:
     motors = []
     for jt in desc.joints:
         if jt.type != "free" and jt.torque is not None:
-            motors.append(
-                f'    <motor name="{jt.name}" joint="{jt.name}" ctrllimited="true" ctrlrange="{_f((-jt.torque, jt.torque))}"/>'
-            )
+            rng = _f((-jt.torque, jt.torque))
+            motors.append(f'    <motor name="{jt.name}" joint="{jt.name}" ctrllimited="true" ctrlrange="{rng}"/>')
     src = desc.source.name if desc.source else desc.name
     return "\n".join(
         [
@@ -278,7 +278,8 @@ def to_mjcf(desc: Description) -> str:
             '  <option timestep="0.001" integrator="implicitfast"/>',
             "  <worldbody>",
             '    <light pos="0 0 3" dir="0 0 -1"/>',
-            '    <geom name="floor" type="plane" size="20 20 0.1" contype="1" conaffinity="1" friction="1.0 0.01 0.001"/>',
+            '    <geom name="floor" type="plane" size="20 20 0.1" contype="1" conaffinity="1" '
+            'friction="1.0 0.01 0.001"/>',
             *lines,
             "  </worldbody>",
             "  <actuator>",

@@ -56,7 +56,9 @@ def test_ik_converges_where_pinocchio_does(arm, method, kwargs, pin_kwargs):
         T_goal = fk_space(M, S, q_goal[idx])
         q0 = robot.q_rest.copy()
         q0[idx] = q_goal[idx] + rng.normal(scale=0.3, size=len(idx))
-        _, pin_ok, _ = pinocchio_ik(model, data, fid, pin.SE3(T_goal[:3, :3], T_goal[:3, 3]), q0, iters=100, **pin_kwargs)
+        _, pin_ok, _ = pinocchio_ik(
+            model, data, fid, pin.SE3(T_goal[:3, :3], T_goal[:3, 3]), q0, iters=100, **pin_kwargs
+        )
         res = ik_space(S, M, T_goal, q0[idx], method=method, max_iterations=300, **kwargs)
         if pin_ok:
             if res.success:

@@ -177,7 +177,9 @@ def test_tita_arm_matches_pinocchio_and_mujoco(tita):
         mujoco.mj_comPos(m, d)
         oMb = pin.SE3(d.xmat[torso].reshape(3, 3).copy(), d.xpos[torso].copy())
         T_pin = (oMb.inverse() * data.oMf[fid]).homogeneous
-        T_mj = trans_inv(oMb.homogeneous) @ np.vstack([np.c_[d.site_xmat[site].reshape(3, 3), d.site_xpos[site]], [0, 0, 0, 1]])
+        T_mj = trans_inv(oMb.homogeneous) @ np.vstack(
+            [np.c_[d.site_xmat[site].reshape(3, 3), d.site_xpos[site]], [0, 0, 0, 1]]
+        )
         T = fk_space(M, S, theta)
         assert np.abs(T - T_pin).max() < TOL
         assert np.abs(T - T_mj).max() < TOL

@@ -66,7 +66,10 @@ def _euclid_grad_hess(f, q, h=1e-5):
         g[i] = (f(q + h * E[i]) - f(q - h * E[i])) / (2 * h)
         for j in range(4):
             Hs[i, j] = (
-                f(q + h * E[i] + h * E[j]) - f(q + h * E[i] - h * E[j]) - f(q - h * E[i] + h * E[j]) + f(q - h * E[i] - h * E[j])
+                f(q + h * E[i] + h * E[j])
+                - f(q + h * E[i] - h * E[j])
+                - f(q - h * E[i] + h * E[j])
+                + f(q - h * E[i] - h * E[j])
             ) / (4 * h * h)
     return g, Hs
 
@@ -82,9 +85,9 @@ def _local_grad_hess(f, q, h=1e-4):
     hess = np.zeros((3, 3))
     for i in range(3):
         for j in range(3):
-            hess[i, j] = (g(h * E[i] + h * E[j]) - g(h * E[i] - h * E[j]) - g(-h * E[i] + h * E[j]) + g(-h * E[i] - h * E[j])) / (
-                4 * h * h
-            )
+            hess[i, j] = (
+                g(h * E[i] + h * E[j]) - g(h * E[i] - h * E[j]) - g(-h * E[i] + h * E[j]) + g(-h * E[i] - h * E[j])
+            ) / (4 * h * h)
     return grad, hess
 
 

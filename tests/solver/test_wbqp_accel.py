@@ -68,6 +68,7 @@ def test_reference_is_the_pd_law_of_eq_10(robot, planner):
     qd = np.array([0.1, 0, 0, 0, 0.1, 0.1, 0.1])
     p_d, v_d, a_d = np.array([0.3, 0.1, 0.9]), np.array([0.1, 0, 0]), np.array([0.0, 0.2, 0])
     pref, p, v = planner.reference(q, qd, p_d, v_d, a_d)
+    assert p == pytest.approx(robot.kin.hand(q)) and v == pytest.approx(robot.kin.jacobian(q) @ qd)
     cfg = planner.config
     assert pref == pytest.approx(a_d + cfg.kp * (p_d - robot.kin.hand(q)) + cfg.kd * (v_d - robot.kin.jacobian(q) @ qd))
 
@@ -142,15 +143,18 @@ def test_out_of_reach_falls_back_to_the_objective_and_says_so(robot, planner):
     q, qd = start(robot)
     dt = planner.config.dt
     statuses = set()
+    fallbacks = []
     for _ in range(300):
         res = planner.solve(q, qd, np.array([0.2, 0.0, 3.5]))
         statuses.add(res.status)
+        if res.status == "infeasible":
+            fallbacks.append(res)
         q, qd = predict(q, qd, res.qdd, dt)
         assert np.all(q >= planner.lower - 1e-9) and np.all(q <= planner.upper + 1e-9)
-    assert "infeasible" in statuses
     assert "failed" not in statuses
-    res = planner.solve(q, qd, np.array([0.2, 0.0, 3.5]))
-    assert res.status == "infeasible" and "objective" in res.reason and res.ee_residual > 1e-3
+    # Once the torso and arm run into their limits the equality cannot hold; the status says so.
+    assert len(fallbacks) > 10
+    assert all("objective" in r.reason and r.ee_residual > 1e-3 for r in fallbacks)
     # The hand still went up as far as it could: torso at its highest, arm pointing up.
     assert q[2] > planner.upper[2] - 0.05
 

@@ -9,16 +9,37 @@ import pytest
 from services.cli import main as mimic
 from services.wbc.runner import WbcEvalConfig
 
-KEYS = {"ee_err_mm": {"mean", "max", "steady_max"}, "torso_vel_err_mps": {"max"}, "torso_att_rad": {"max"},
-        "solve_ms": {"mean", "p50", "p99"}}
+KEYS = {
+    "ee_err_mm": {"mean", "max", "steady_max"},
+    "torso_vel_err_mps": {"max"},
+    "torso_att_rad": {"max"},
+    "solve_ms": {"mean", "p50", "p99"},
+}
 
 
 @pytest.mark.slow
 def test_wbc_eval_cli_short_reach(tmp_path, capsys):
     out = tmp_path / "wbc.json"
     plots = tmp_path / "plots"
-    rc = mimic(["wbc-eval", "--robot", "models/tita_piper.toml", "--json", str(out), "--plots", str(plots),
-                "--goal-x", "0.7", "--duration", "2.5", "--hold", "1.5", "--steady-window", "0.5"])
+    rc = mimic(
+        [
+            "wbc-eval",
+            "--robot",
+            "models/tita_piper.toml",
+            "--json",
+            str(out),
+            "--plots",
+            str(plots),
+            "--goal-x",
+            "0.7",
+            "--duration",
+            "2.5",
+            "--hold",
+            "1.5",
+            "--steady-window",
+            "0.5",
+        ]
+    )
     assert rc == 0
     rep = json.loads(out.read_text())
     assert json.loads(capsys.readouterr().out) == rep
@@ -33,7 +54,11 @@ def test_wbc_eval_cli_short_reach(tmp_path, capsys):
     # The hand ends near the goal: a few mm, not cm (the full-length figures are in the report).
     assert rep["ee_err_mm"]["steady_max"] < 10.0
     assert sorted(p.name for p in plots.iterdir()) == [
-        "fig2b_1_hand_x.png", "fig2b_2_hand_z.png", "fig2b_3_torso_vx.png", "fig2b_4_torso_attitude.png"]
+        "fig2b_1_hand_x.png",
+        "fig2b_2_hand_z.png",
+        "fig2b_3_torso_vx.png",
+        "fig2b_4_torso_attitude.png",
+    ]
 
 
 def test_bad_profile_is_a_clear_error(tmp_path, capfd):
