@@ -20,7 +20,8 @@ When the equality cannot hold with the other constraints (target out of reach, o
 eq. 13 lets the torso follow), the QP is infeasible; as section 4.1 argues, the end-effector
 task then moves into the objective (Q term) and the status says ``infeasible`` with the
 achieved acceleration residual. Eq. 6 weighs the hand term ~1e12 times the R term at Δt = 1 ms,
-so that objective is solved as its limit (best hand acceleration, then R with it held). The position limits always stay hard. Where eq. 11 and eq. 13
+so that objective is solved as its limit (best hand acceleration, then R with it held).
+The position limits always stay hard. Where eq. 11 and eq. 13
 contradict (the torso must brake harder than ε allows to stay in its box) the limits win.
 """
 
