@@ -247,9 +247,7 @@ class WbqpAccel:
                 res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
                 relaxed = "; eq. 13 relaxed this tick"
             if res.ok:
-                held = self.backend.solve(
-                    H, f, lo, hi, E=np.vstack([J, nh_E]), e=np.r_[J @ res.x, nh_e], key="wbqp-eq"
-                )
+                held = self.backend.solve(H, f, lo, hi, E=np.vstack([J, nh_E]), e=np.r_[J @ res.x, nh_e], key="wbqp-eq")
                 if held.ok and np.linalg.norm(J @ held.x - J @ res.x) <= cfg.eq_tol * (1.0 + np.linalg.norm(b)):
                     res = held
             if res.ok:

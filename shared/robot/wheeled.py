@@ -18,8 +18,9 @@ import pinocchio as pin
 
 from shared.kinematics.mobile_arm import MobileArmKinematics
 from shared.kinematics.poe import exp6, screw_axis
+from shared.paths import MODELS_DIR
 from shared.robot.description import Description, load_description, mjcf_path, to_mjcf
-from shared.robot.profile import MODELS_DIR, ProfileError
+from shared.robot.profile import ProfileError
 
 
 @dataclass(frozen=True)

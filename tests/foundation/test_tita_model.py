@@ -9,8 +9,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from shared.paths import MODELS_DIR
 from shared.robot.description import DescriptionError, load_description, mjcf_path, to_mjcf
-from shared.robot.profile import MODELS_DIR
 from shared.robot.wheeled import build_wheeled_robot, load_wheeled_profile
 
 PROFILE = MODELS_DIR / "tita_piper.toml"

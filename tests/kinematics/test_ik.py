@@ -31,7 +31,7 @@ def pinocchio_ik(model, data, fid, oMdes, q0, iters=300, damp=1e-12, dt=0.5, eps
 @pytest.fixture(scope="module")
 def arm():
     robot = build_robot_model(with_waist=False)
-    joints = tuple(robot.profile.right_arm)
+    joints = robot.profile.arms["right"].joints
     frame = robot.profile.frames["right_wrist"]
     S, M = arm_screws(robot.model, joints, frame, robot.profile.base_frame)
     idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in joints]

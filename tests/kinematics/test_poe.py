@@ -29,6 +29,7 @@ from shared.kinematics.poe import (
 from shared.robot.mujoco_model import build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
 from shared.robot.wheeled import arm_screws, build_wheeled_robot
+from shared.targets import SIDES, wrist_of
 
 TOL = 1e-10
 N_CONFIGS = 40
@@ -43,8 +44,9 @@ def _swap(J: np.ndarray) -> np.ndarray:
 def g1():
     robot = build_robot_model(with_waist=False)
     chains = {}
-    for side, joints in (("right", robot.profile.right_arm), ("left", robot.profile.left_arm)):
-        frame = robot.profile.frames[f"{side}_wrist"]
+    for side in SIDES:
+        joints = robot.profile.arms[side].joints
+        frame = robot.profile.frames[wrist_of(side)]
         S, M = arm_screws(robot.model, tuple(joints), frame, robot.profile.base_frame)
         idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in joints]
         chains[side] = (S, M, idx, frame)
