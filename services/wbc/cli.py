@@ -20,7 +20,7 @@ log = logging.getLogger("mimic.wbc")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``mimic wbc-eval``."""
-    from services.wbc.runner import FEEDBACK, WbcEvalConfig
+    from services.wbc.runner import WbcEvalConfig
 
     d = WbcEvalConfig()
     parser.add_argument("--robot", default="models/tita_piper.toml", help="wheeled-arm robot profile (TOML)")
@@ -32,7 +32,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hold", type=float, default=d.hold, help="hold at the goal afterwards [s]")
     parser.add_argument("--steady-window", type=float, default=d.steady_window, help="final span for steady error [s]")
     parser.add_argument("--qp", choices=("piqp", "daqp"), default=d.planner.qp, help="QP backend of wbqp-accel")
-    parser.add_argument("--feedback", choices=FEEDBACK, default=d.feedback, help="where the planner's state comes from")
 
 
 def plot(trace: dict, out_dir: Path) -> list[Path]:
@@ -100,7 +99,6 @@ def main(args: argparse.Namespace) -> int:
         duration=args.duration,
         hold=args.hold,
         steady_window=args.steady_window,
-        feedback=args.feedback,
     )
     cfg.planner.qp = args.qp
     out = run_reach(cfg, robot)

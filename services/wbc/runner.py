@@ -3,8 +3,10 @@
 Loop, one tick per physics step Δt: the planner (:class:`~services.solver.wbqp_accel.WbqpAccel`)
 plans q̈ from its state, integrates it (eq. 7) into the reference the
 :class:`~services.wbc.balance.BalanceController` turns into torques; MuJoCo steps. The
-planner's state is its own prediction (``feedback="plan"``, default) or the measured robot
-(``feedback="measured"``: the seed's "q_pre, q̇_pre from sensors").
+planner's q_pre, q̇_pre are its own prediction (eq. 7), not the measured robot as in the seed:
+fed the measured torso position, the loop diverges (a wheeled pendulum first rolls backwards to
+lean forwards; the hand PD reads that as error and the planner pushes harder). The balance
+controller closes the loop on the torso instead.
 
 The hand's desired motion is a minimum-jerk (quintic) path from its start to the goal over
 ``duration`` seconds, then a hold; "steady state" is the last ``steady_window`` seconds.
@@ -26,8 +28,8 @@ from shared.robot.wheeled import WheeledRobot, build_wheeled_robot
 
 log = logging.getLogger("mimic.wbc")
 
-#: Where the planner's q_pre, q̇_pre come from each tick (see WbcEvalConfig.feedback).
-FEEDBACK = ("position", "plan", "measured")
+#: Torso-centre height [m] under which the robot counts as fallen (it stands at 0.30-0.46 m).
+FALLEN_Z = 0.15
 #: Tolerance [rad or m] past a Table 2 joint range before a measured joint counts as a violation.
 RANGE_TOL = 1e-3
 
@@ -41,7 +43,6 @@ class WbcEvalConfig:
         duration: time of the quintic reach [s]; hold: time held at the goal afterwards [s].
         settle: balancing at the start pose before the reach [s].
         steady_window: final span where the steady-state error is taken [s].
-        feedback: ``plan`` (planner integrates its own state) or ``measured`` (state from MuJoCo).
         planner, balance: component settings.
     """
 
@@ -51,13 +52,10 @@ class WbcEvalConfig:
     hold: float = 4.0
     settle: float = 1.0
     steady_window: float = 2.0
-    feedback: str = "plan"
     planner: WbqpConfig = field(default_factory=lambda: WbqpConfig(dt=0.001))
     balance: BalanceConfig = field(default_factory=BalanceConfig)
 
     def __post_init__(self) -> None:
-        if self.feedback not in FEEDBACK:
-            raise ValueError(f"feedback must be one of {FEEDBACK}, got {self.feedback!r}")
         if self.steady_window > self.hold:
             raise ValueError("steady_window must not exceed hold")
 
@@ -162,16 +160,13 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
     tr.update({k: np.zeros(n) for k in ("t", "vx_plan", "vx_sim", "pitch", "roll", "solve_ms", "cpu_ms", "ee_res")})
     tr["q_plan"] = np.zeros((n, NQ))
     statuses: dict[str, int] = {}
+    fell_at = None
     violations = 0
     viol_detail: dict[str, int] = {}
     jranges = [(j, m.jnt_qposadr[j], m.jnt_range[j]) for j in range(m.njnt) if m.jnt_limited[j]]
     for i in range(n):
         t = i * cfg.planner.dt
         p_d, v_d, a_d = min_jerk(p0, goal, cfg.duration, t)
-        if cfg.feedback == "measured":
-            q_plan, qd_plan = measured_q(robot, d)
-        elif cfg.feedback == "position":
-            q_plan = measured_q(robot, d)[0]
         res = planner.solve(q_plan, qd_plan, p_d, v_d, a_d)
         statuses[res.status] = statuses.get(res.status, 0) + 1
         qdd_plan = res.qdd
@@ -181,6 +176,15 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
             viol_detail["plan"] = viol_detail.get("plan", 0) + 1
         ctrl.compute(d, reference())
         mujoco.mj_step(m, d)
+        if not np.all(np.isfinite(d.qpos)) or d.qpos[2] < FALLEN_Z:
+            # The robot fell (or the physics diverged): stop, and say so in the report.
+            fell_at = t
+            violations += 1
+            viol_detail["fell"] = 1
+            log.error("robot fell or diverged at t = %.3f s: stopping the run", t)
+            n = i
+            tr = {k: v[:n] for k, v in tr.items()}
+            break
         for j, adr, (a, b) in jranges:
             if not a - RANGE_TOL <= d.qpos[adr] <= b + RANGE_TOL:
                 violations += 1
@@ -199,8 +203,12 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         tr["cpu_ms"][i] = res.cpu_ms
         tr["ee_res"][i] = res.ee_residual
         tr["q_plan"][i] = q_plan
+    if n == 0:
+        raise RuntimeError("the robot fell before the first planner tick")
     err = np.linalg.norm(tr["p_sim"] - tr["p_des"], axis=1) * 1e3
     steady = tr["t"] >= cfg.duration + cfg.hold - cfg.steady_window
+    if not steady.any():  # fell before the steady window: the last sample stands in (fell_at_s says so)
+        steady[-1] = True
     ms = tr["solve_ms"]
     metrics = {
         "ee_err_mm": {"mean": float(err.mean()), "max": float(err.max()), "steady_max": float(err[steady].max())},
@@ -227,11 +235,11 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         "ee_steady_max_mm_z": float(steady_xz[:, 2].max()),
         "plan_ee_err_mm_max": float(np.max(np.linalg.norm(tr["p_plan"] - tr["p_des"], axis=1)) * 1e3),
         "torso_travel_m": float(tr["q_plan"][-1, 0] - tr["q_plan"][0, 0]),
+        "fell_at_s": fell_at,
         "hand_start": p0.tolist(),
         "hand_goal": goal.tolist(),
         "final_q_plan": tr["q_plan"][-1].tolist(),
         "dt_s": cfg.planner.dt,
-        "feedback": cfg.feedback,
         "qp": cfg.planner.qp,
     }
     return {"metrics": metrics, "trace": tr, "info": info}
