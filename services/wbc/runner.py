@@ -24,7 +24,7 @@ import numpy as np
 from services.solver.wbqp_accel import WbqpAccel, WbqpConfig, predict
 from services.wbc.balance import BalanceConfig, BalanceController, Reference, leg_ik, yaw_pitch_roll
 from shared.kinematics.mobile_arm import ARM, BASE, NQ
-from shared.robot.wheeled import WheeledRobot, build_wheeled_robot
+from shared.robot.wheeled import WheeledRobot, build_wheeled_robot, planner_limits
 
 log = logging.getLogger("mimic.wbc")
 
@@ -70,17 +70,6 @@ def min_jerk(p0: np.ndarray, p1: np.ndarray, T: float, t: float) -> tuple[np.nda
     vel = (30 * s**2 - 60 * s**3 + 30 * s**4) / T
     acc = (60 * s - 180 * s**2 + 120 * s**3) / (T * T)
     return p0 + d * pos, d * vel, d * acc
-
-
-def limits(robot: WheeledRobot) -> tuple[np.ndarray, np.ndarray]:
-    """(lower, upper) (7,) of the planner's coordinates: x, y, α unbounded; z and the arm from the profile."""
-    prof = robot.profile
-    lo = np.full(NQ, -np.inf)
-    hi = np.full(NQ, np.inf)
-    lo[2], hi[2] = prof.z_range
-    for k, name in enumerate(prof.arm):
-        lo[4 + k], hi[4 + k] = prof.joint_range(name)
-    return lo, hi
 
 
 def place_robot(robot: WheeledRobot, d: mujoco.MjData, base: np.ndarray, arm: np.ndarray) -> None:
@@ -138,7 +127,7 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
     place_robot(robot, d, prof.start_base, prof.start_arm)
     ctrl = BalanceController(m, prof.arm, prof.held, prof.wheels, config=cfg.balance)
     ctrl.cfg.dt = cfg.planner.dt
-    lo, hi = limits(robot)
+    lo, hi = planner_limits(robot)
     planner = WbqpAccel(robot.kin, lo, hi, cfg.planner)
     q = measured_q(robot, d)[0]
     q_plan, qd_plan, qdd_plan = q.copy(), np.zeros(NQ), np.zeros(NQ)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.kinematics.poe import adjoint, exp6, fk_space, jacobian_space, jacobian_space_dot, mixed_from_space
+from shared.kinematics.poe import fk_space, jacobian_space, jacobian_space_dot, mixed_from_space, skew
 from shared.rotations import cross3
 
 NQ = 7
@@ -46,6 +46,16 @@ class MobileArmKinematics:
 
     S: np.ndarray
     M: np.ndarray
+
+    def __post_init__(self) -> None:
+        self._joint = []
+        for i in range(self.S.shape[1]):
+            w, v = self.S[:3, i].astype(float), self.S[3:, i].astype(float)
+            if abs(np.linalg.norm(w) - 1.0) > 1e-12:
+                raise ValueError(f"arm joint {i}: screw axis needs a unit rotation axis (revolute joint)")
+            K = skew(w)
+            K2 = K @ K
+            self._joint.append((w, v, K, K2, K @ v, K2 @ v))
 
     def hand_in_torso(self, theta: np.ndarray) -> np.ndarray:
         """p_b^h (3,) [m]: the hand in Σb."""
@@ -99,15 +109,23 @@ class MobileArmKinematics:
         Same quantities as :meth:`hand`, :meth:`jacobian` and :meth:`jacobian_dot_qdot` (the
         tests hold them equal), with each joint exponential computed once.
         """
-        S = self.S
         theta, dtheta = q[ARM], qd[ARM]
-        n = S.shape[1]
+        n = self.S.shape[1]
         Js = np.empty((6, n))
-        T = np.eye(4)
+        # Revolute chain with precomputed [ω̂], [ω̂]^2 (see __post_init__): T_i = T_(i-1) e^[S_i]θ_i
+        # as (R, p), and J_si = Ad_T(i-1) S_i = [R ω_i; R v_i + p × R ω_i].
+        R = np.eye(3)
+        pos = np.zeros(3)
         for i in range(n):
-            Js[:, i] = S[:, i] if i == 0 else adjoint(T) @ S[:, i]
-            T = T @ exp6(S[:, i] * theta[i])
-        p = (T @ self.M)[:3, 3]
+            w, v, K, K2, Kv, K2v = self._joint[i]
+            Rw = R @ w
+            Js[:3, i] = Rw
+            Js[3:, i] = R @ v + cross3(pos, Rw)
+            th = float(theta[i])
+            st, ct = math.sin(th), math.cos(th)
+            pos = pos + R @ (v * th + (1.0 - ct) * Kv + (th - st) * K2v)
+            R = R @ (np.eye(3) + st * K + (1.0 - ct) * K2)
+        p = R @ self.M[:3, 3] + pos
         # J̇_s θ̇ = Σ_i ad(V_{i-1}) J_si θ̇_i, V_{i-1} = Σ_{j<i} J_sj θ̇_j (ad written out: no 6x6 products).
         wacc = np.zeros(3)
         vacc = np.zeros(3)

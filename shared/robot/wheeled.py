@@ -170,3 +170,14 @@ def build_wheeled_robot(profile: WheeledProfile | str | Path = "tita_piper") -> 
         M = M @ exp6(S_chain[:, 3 + k] * prof.held[name])
     kin = MobileArmKinematics(S_chain[:, :3].copy(), M @ M_chain)
     return WheeledRobot(prof, mj_model, pin_model, kin, S_chain, M_chain)
+
+
+def planner_limits(robot: WheeledRobot) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) (7,) of seed 002's coordinates: x, y, α unbounded; z and the arm from the profile."""
+    prof = robot.profile
+    lo = np.full(7, -np.inf)
+    hi = np.full(7, np.inf)
+    lo[2], hi[2] = prof.z_range
+    for k, name in enumerate(prof.arm):
+        lo[4 + k], hi[4 + k] = prof.joint_range(name)
+    return lo, hi

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from services.solver.wbqp_accel import WbqpAccel, WbqpConfig, predict
-from services.wbc.runner import limits
 from shared.kinematics.mobile_arm import ARM, BASE
-from shared.robot.wheeled import build_wheeled_robot
+from shared.robot.wheeled import build_wheeled_robot, planner_limits
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +19,7 @@ def robot():
 
 @pytest.fixture(params=["piqp", "daqp"])
 def planner(request, robot):
-    lo, hi = limits(robot)
+    lo, hi = planner_limits(robot)
     return WbqpAccel(robot.kin, lo, hi, WbqpConfig(dt=0.001, qp=request.param))
 
 
@@ -124,7 +123,7 @@ def test_torso_acceleration_change_is_bounded(robot, planner):
 
 def test_torso_extends_the_arm_with_light_base_weights(robot):
     """Eq. 6's R: a heavy arm weight makes the torso carry the hand's motion, a heavy base weight the arm."""
-    lo, hi = limits(robot)
+    lo, hi = planner_limits(robot)
     q0, qd0 = start(robot)
     goal = robot.kin.hand(q0) + np.array([0.2, 0.0, 0.0])
     shares = []
