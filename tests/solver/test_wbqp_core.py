@@ -50,7 +50,7 @@ def test_reaching_forward_rolls_the_torso_forward(robot):
 def test_stale_and_invalid_targets_are_held(robot):
     core = WbqpCore(robot, WbqpCoreConfig(planner=WbqpConfig(dt=DT), timeout=0.1))
     p0 = robot.kin.hand(core.q)
-    core.step(targets(1, p0 + [0.05, 0, 0]), 0.0)
+    core.step(targets(1, p0 + np.array([0.05, 0.0, 0.0])), 0.0)
     cmd = core.step(None, 0.2)
     assert cmd.status == "held" and "stale" in cmd.reason
     cmd = core.step(targets(2, p0, valid=False), 0.21)
