@@ -57,7 +57,6 @@ class BalanceConfig:
         regain_period: recompute the LQR gains every this many seconds.
         joint_kp, joint_kd: PD gains of the legs [N m/rad, N m s/rad]; arm_kp, arm_kd: of the arm.
         yaw_kp, yaw_kd: heading PD [N m/rad, N m s/rad] (differential wheel torque).
-        x_integral: integral rate [1/s] on the torso position error (fed through the LQR's position gain).
         trim_gain: integral gain [m/(rad s)] moving the axle target to level the torso's pitch
             (and [1/s] on the torso height error, for the legs' sag under load).
     """
@@ -73,7 +72,6 @@ class BalanceConfig:
     yaw_kp: float = 200.0
     yaw_kd: float = 40.0
     trim_gain: float = 2.0
-    x_integral: float = 0.0
 
 
 def yaw_pitch_roll(quat_wxyz: np.ndarray) -> tuple[float, float, float]:
@@ -194,7 +192,6 @@ class BalanceController:
         self.params = (1.0, 1.0, 1.0)
         self.trim = 0.0  # axle target trim in the torso frame [m]
         self.ztrim = 0.0  # torso height target trim [m] (leg servo sag)
-        self.xint = 0.0  # integral of the torso position error [m s]
         self.last = {}
 
     # ------------------------------------------------------------------ measurements
@@ -293,20 +290,15 @@ class BalanceController:
         # servo sag would otherwise offset the torso from its plan by millimetres.
         x_err = float(fwd_ref @ (d.qpos[:2] - ref.base[:2]))
         err = np.array([x_err, pend["phi"] - phi_ref, pend["xd"] - vel, pend["phid"]])
-        # Integral on the torso position: soft contacts and model error leave a static offset.
-        self.xint = max(-0.05, min(0.05, self.xint + x_err * cfg.dt))
-        # It enters like the position state (through K_x): a wheeled pendulum first rolls the
-        # wrong way to lean the right way, so the sign must follow the LQR's.
-        tau = tau_ff - float((self.K @ err)[0]) - float(self.K[0, 0]) * cfg.x_integral * self.xint
+        tau = tau_ff - float((self.K @ err)[0])
         # Heading: differential torque (right wheel forward turns left, +yaw).
         yaw_rate = float(d.qvel[5])  # body-frame z rate ~ world yaw rate with the torso level
         yaw_err = math.atan2(math.sin(alpha - pend["yaw"]), math.cos(alpha - pend["yaw"]))
         tau_yaw = cfg.yaw_kp * yaw_err + cfg.yaw_kd * (ref.base_d[3] - yaw_rate)
-        for side, sign, w in zip(self.sides, (-1.0, 1.0), self.wheel_joints):
+        for sign, w in zip((-1.0, 1.0), self.wheel_joints):  # left, right
             a = self.act[w]
             lo, hi = self.m.actuator_ctrlrange[a]
             d.ctrl[a] = min(hi, max(lo, 0.5 * tau + sign * 0.5 * tau_yaw))
-            del side
         # Legs: torso at height z_b, level; axle where the lean wants it (in the torso's heading frame).
         for s in self.sides:
             hip_out, hip_pitch, knee = self.legs[s]
