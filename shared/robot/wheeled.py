@@ -61,6 +61,21 @@ class WheeledProfile:
         raise KeyError(f"joint {name!r} has no range in {self.source}")
 
 
+#: ``kind`` of the profiles this module reads.
+WHEELED_KIND = "wheeled_legged_arm"
+
+
+def is_wheeled_profile(name_or_path: str | Path) -> bool:
+    """True when the profile (name or path) exists and declares ``kind = "wheeled_legged_arm"``."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = MODELS_DIR / f"{name_or_path}.toml"
+    if not path.exists():
+        return False
+    with path.open("rb") as fh:
+        return tomllib.load(fh).get("kind") == WHEELED_KIND
+
+
 def load_wheeled_profile(name_or_path: str | Path) -> WheeledProfile:
     """Load a wheeled-arm profile by name (``models/<name>.toml``) or path.
 
