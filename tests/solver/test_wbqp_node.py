@@ -18,7 +18,7 @@ from services.router.cli import router_config
 from services.solver.wbqp_accel import Q_NAMES
 from shared.bus import bus_args, zenoh_config
 from shared.keys import Keys
-from shared.messages import Header, JointCommand, Target, TaskTargets
+from shared.messages import Header, JointCommand, RobotState, Target, TaskTargets
 from shared.robot.wheeled import build_wheeled_robot
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -78,3 +78,46 @@ def test_wheeled_solver_rolls_the_torso_towards_a_far_hand_target(router):
         code = stop_processes(proc, sig=signal.SIGTERM)[0]
         client.close()
     assert code == 0, proc.stderr.read()
+
+
+def test_wheeled_solver_and_sim_on_the_bus(router):
+    """`mimic solve` and `mimic sim` with --robot models/tita_piper.toml: the simulated torso rolls and balances."""
+    robot = build_wheeled_robot("tita_piper")
+    session = "wbqp_sim_it"
+    keys = Keys(session)
+    client = zenoh.open(zenoh_config(bus_args(connect=[router])))
+    states: queue.Queue = queue.Queue()
+    client.declare_subscriber(keys.sim_state, lambda s: states.put(RobotState.decode(s.payload.to_bytes())))
+    pub = client.declare_publisher(keys.targets)
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    base = [sys.executable, "-m", "services.cli"]
+    bus = ["--robot", "models/tita_piper.toml", "--connect", router, "--session", session]
+    procs = [
+        subprocess.Popen([*base, "sim", *bus], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+        subprocess.Popen(
+            [*base, "solve", *bus, "--rate", "200"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        ),
+    ]
+    try:
+        first = states.get(timeout=120)
+        assert first.joints == list(Q_NAMES) and "right_wrist" in first.frames
+        p0 = robot.kin.hand(np.r_[robot.profile.start_base, robot.profile.start_arm])
+        goal = p0 + np.array([0.3, 0.0, 0.0])
+        last = None
+        t_end = time.monotonic() + 10.0
+        seq = 0
+        while time.monotonic() < t_end:
+            seq += 1
+            s = min(seq / 200.0, 1.0)  # a 4 s ramp at 50 Hz, then held
+            tg = Target(p0 + s * (goal - p0), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3))
+            pub.put(TaskTargets(Header(seq, seq / 50.0, time.time_ns()), {"right_wrist": tg}).encode())
+            time.sleep(0.02)
+            while not states.empty():
+                last = states.get_nowait()
+        assert last is not None and not last.holding
+        assert last.q[0] > 0.02  # the simulated torso rolled forward
+        assert last.q[2] > 0.3  # and stands
+    finally:
+        codes = stop_processes(*procs, sig=signal.SIGTERM)
+        client.close()
+    assert codes == [0, 0], [p.stderr.read()[-2000:] for p in procs]
