@@ -13,25 +13,25 @@ import argparse
 import logging
 from pathlib import Path
 
+from shared.config import add_dataclass_arguments, config_from_args
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.wbc")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags of ``mimic wbc-eval``."""
+    """Flags of ``mimic wbc-eval`` (the reach's from :class:`~services.wbc.runner.WbcEvalConfig`)."""
     from services.wbc.runner import WbcEvalConfig
 
-    d = WbcEvalConfig()
     parser.add_argument("--robot", default="models/tita_piper.toml", help="wheeled-arm robot profile (TOML)")
     parser.add_argument("--json", default=None, help="write the metrics JSON here (also printed)")
     parser.add_argument("--plots", default=None, help="directory for the Fig. 2(b) PNGs")
-    parser.add_argument("--goal-x", type=float, default=d.goal_x, help="hand goal x in the world [m]")
-    parser.add_argument("--goal-z", type=float, default=d.goal_z, help="hand goal z in the world [m]")
-    parser.add_argument("--duration", type=float, default=d.duration, help="reach duration [s]")
-    parser.add_argument("--hold", type=float, default=d.hold, help="hold at the goal afterwards [s]")
-    parser.add_argument("--steady-window", type=float, default=d.steady_window, help="final span for steady error [s]")
-    parser.add_argument("--qp", choices=("piqp", "daqp"), default=d.planner.qp, help="QP backend of wbqp-accel")
+    parser.add_argument("--qp", choices=("daqp", "piqp"), default=WbcEvalConfig().planner.qp, help="QP backend")
+    add_dataclass_arguments(parser.add_argument_group("reach (WbcEvalConfig)"), WbcEvalConfig, skip=SKIP)
+
+
+#: WbcEvalConfig fields without flags (component settings, set in code).
+SKIP = ("planner", "balance")
 
 
 def plot(trace: dict, out_dir: Path) -> list[Path]:
@@ -93,13 +93,11 @@ def main(args: argparse.Namespace) -> int:
     except (ProfileError, OSError, KeyError) as exc:
         log.error("cannot load robot %s: %s", args.robot, exc)
         return 2
-    cfg = WbcEvalConfig(
-        goal_x=args.goal_x,
-        goal_z=args.goal_z,
-        duration=args.duration,
-        hold=args.hold,
-        steady_window=args.steady_window,
-    )
+    try:
+        cfg = config_from_args(WbcEvalConfig, args)
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 2
     cfg.planner.qp = args.qp
     out = run_reach(cfg, robot)
     report = {**out["metrics"], "info": out["info"]}

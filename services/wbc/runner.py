@@ -39,11 +39,13 @@ class WbcEvalConfig:
     """Experiment settings.
 
     Attributes:
-        goal_x, goal_z: hand goal in Σw [m] (seed: x = 2.0, z = 0.8; y stays at the start).
-        duration: time of the quintic reach [s]; hold: time held at the goal afterwards [s].
+        goal_x: hand goal x in the world Σw [m] (seed: 2.0; y stays at the start).
+        goal_z: hand goal z in the world Σw [m] (seed: 0.8).
+        duration: time of the minimum-jerk reach [s].
+        hold: time held at the goal afterwards [s].
         settle: balancing at the start pose before the reach [s].
         steady_window: final span where the steady-state error is taken [s].
-        planner, balance: component settings.
+        planner: the planner's settings. balance: the balance controller's.
     """
 
     goal_x: float = 2.0

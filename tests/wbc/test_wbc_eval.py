@@ -31,11 +31,11 @@ def test_wbc_eval_cli_short_reach(tmp_path, capsys):
             "--plots",
             str(plots),
             "--goal-x",
-            "0.7",
+            "0.5",
             "--duration",
-            "2.5",
+            "3",
             "--hold",
-            "1.5",
+            "2",
             "--steady-window",
             "0.5",
         ]
@@ -49,10 +49,11 @@ def test_wbc_eval_cli_short_reach(tmp_path, capsys):
     info = rep["info"]
     assert info["statuses"].get("ok", 0) > 0 and "failed" not in info["statuses"]
     # The torso rolled forward to extend the arm (the seed's point), and the robot stayed up.
-    assert info["torso_travel_m"] > 0.2
-    assert rep["torso_att_rad"]["max"] < 0.02
-    # The hand ends near the goal: a few mm, not cm (the full-length figures are in the report).
-    assert rep["ee_err_mm"]["steady_max"] < 10.0
+    # Measured on this shortened reach (0.385 m in 3 s, 2 s hold): torso travel 0.38 m, attitude
+    # 7.6 mrad, steady hand error 1.2 mm; the seed-length figures are in services/wbc/README.md.
+    assert info["torso_travel_m"] > 0.3
+    assert rep["torso_att_rad"]["max"] < 0.012
+    assert rep["ee_err_mm"]["steady_max"] < 2.5
     assert sorted(p.name for p in plots.iterdir()) == [
         "fig2b_1_hand_x.png",
         "fig2b_2_hand_z.png",
@@ -67,6 +68,8 @@ def test_bad_profile_is_a_clear_error(tmp_path, capfd):
     assert "not found" in capfd.readouterr().err
 
 
-def test_config_is_validated():
+def test_config_is_validated(capfd):
+    assert mimic(["wbc-eval", "--hold", "1", "--steady-window", "2"]) == 2
+    assert "steady_window must not exceed hold" in capfd.readouterr().err
     with pytest.raises(ValueError, match="steady_window"):
         WbcEvalConfig(hold=1.0, steady_window=2.0)
