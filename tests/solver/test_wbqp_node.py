@@ -61,7 +61,9 @@ def test_wheeled_solver_rolls_the_torso_towards_a_far_hand_target(router):
         p0 = robot.kin.hand(np.r_[robot.profile.start_base, robot.profile.start_arm])
         goal = p0 + np.array([0.4, 0.0, 0.0])  # beyond the arm's own reach forward
         last = None
-        t_end = time.monotonic() + 8.0
+        # Under load the solver ticks slower than --rate and its plan (integrated per tick) lags the
+        # wall clock: keep the goal up until the hand is there, for at most 30 s.
+        t_end = time.monotonic() + 30.0
         seq = 0
         while time.monotonic() < t_end:
             seq += 1
@@ -71,6 +73,8 @@ def test_wheeled_solver_rolls_the_torso_towards_a_far_hand_target(router):
             time.sleep(0.02)
             while not got.empty():
                 last = got.get_nowait()
+            if s >= 1.0 and last is not None and np.linalg.norm(robot.kin.hand(last.q) - goal) < 0.02:
+                break
         assert last is not None and last.status in ("ok", "infeasible"), last and last.reason
         assert last.q[0] > 0.05  # the torso rolled forward
         assert np.linalg.norm(robot.kin.hand(last.q) - goal) < 0.02
