@@ -190,7 +190,9 @@ def _names(x: Any, where: str, known: tuple[str, ...] | None) -> list[str]:
 
 
 def _fl(a: np.ndarray) -> list[float]:
-    return [float(v) for v in np.asarray(a, dtype=float).ravel()]
+    # tolist() converts in C: the same Python floats as a per-element float(), several times faster
+    # (every message on the bus is encoded through here, on the services' hot paths).
+    return np.asarray(a, dtype=float).ravel().tolist()
 
 
 # --------------------------------------------------------------------------- building blocks

@@ -62,6 +62,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--lockstep-dt", type=float, default=0.01, help="simulated time per command in lock-step [s]")
     g.add_argument("--state-rate", type=float, default=200.0, help="RobotState rate in real time [Hz]")
+    g.add_argument(
+        "--state-on-command",
+        action="store_true",
+        help="realtime: also publish RobotState right after each applied command (latency benches)",
+    )
     g.add_argument("--render", default=None, metavar="DIR", help="render offscreen to DIR (sim.mp4 or PNG frames)")
     g.add_argument("--render-fps", type=float, default=10.0, help="rendered frames per simulated second")
     g.add_argument("--render-format", choices=("auto", "mp4", "png"), default="auto", help="mp4 needs ffmpeg")
