@@ -78,13 +78,23 @@ def main(args: argparse.Namespace) -> int:
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         Keys().command(args.solver_id)
         if args.state_rate <= 0 or args.lockstep_dt <= 0:
             raise ValueError("--state-rate and --lockstep-dt must be positive")
         config = sim_config(args)
-        core = SimCore(args.robot, config)
+        if is_wheeled_profile(args.robot):
+            # A wheeled-legged arm robot (seed 002): its balancing core follows 7-D commands.
+            from services.wbc.sim_core import WheeledSimConfig, WheeledSimCore
+
+            core = WheeledSimCore(
+                args.robot,
+                WheeledSimConfig(config.timestep, config.watchdog, config.max_extrapolation, config.solver_id),
+            )
+        else:
+            core = SimCore(args.robot, config)
     except (ProfileError, ValueError, KeyError) as exc:
         log.error("%s", exc)
         return 2
