@@ -4,7 +4,9 @@
 #   tests/docker/engine.sh            # prepare the engine + image, then run tests/docker (pytest)
 #   tests/docker/engine.sh prepare    # only prepare (prints DOCKER_HOST to use)
 #
-# MIMIC_ENGINE=podman (default) installs what is missing, idempotently and fast when present:
+# MIMIC_ENGINE picks the engine; unset: podman when installed, else a Docker engine that answers,
+# else podman installed as root. MIMIC_ENGINE=podman installs what is missing, idempotently and
+# fast when present:
 #   1. podman, runc, debootstrap (apt-get, as root);
 #   2. tests/docker/containers.conf via CONTAINERS_CONF (ulimits this sandbox accepts, runc);
 #   3. a base image without a registry: debootstrap bookworm from the apt mirror, imported as
@@ -18,7 +20,15 @@ set -euo pipefail
 
 REPO="$(cd "$(dirname "$0")/../.." && pwd)"
 cd "$REPO"
-ENGINE="${MIMIC_ENGINE:-podman}"
+if [ -n "${MIMIC_ENGINE:-}" ]; then
+  ENGINE="$MIMIC_ENGINE"
+elif command -v podman >/dev/null; then
+  ENGINE=podman
+elif command -v docker >/dev/null && docker info >/dev/null 2>&1; then
+  ENGINE=docker
+else
+  ENGINE=podman
+fi
 BASE_IMAGE="${MIMIC_BASE_IMAGE:-localhost/debian-py:bookworm}"
 IMAGE="${MIMIC_IMAGE:-mimic:latest}"
 STATE_DIR="${MIMIC_PODMAN_DIR:-/tmp/mimic-podman}"
@@ -157,6 +167,12 @@ if [ "${1:-run}" = prepare ]; then
 fi
 trap 'rc=$?; stop_service; [ $rc -ne 0 ] && echo "[test-docker] FAILED at step ${STEP:-setup} (exit $rc); see the output above" >&2' EXIT
 step_start "container tests"
-"$PY" -m pytest -p no:cacheprovider -m docker tests/docker "${@:2}" || die "container tests failed"
+echo "[test-docker] engine $ENGINE, DOCKER_HOST=${DOCKER_HOST:-default}" >&2
+rc=0
+"$PY" -m pytest -p no:cacheprovider -m docker tests/docker "${@:2}" || rc=$?
+# The figures of every step (also on failure: they say how far it got).
+latest=$(ls -t runs/*_docker.json 2>/dev/null | head -1 || true)
+[ -n "$latest" ] && { echo "[test-docker] figures ($latest):" >&2; cat "$latest" >&2; }
+[ $rc -eq 0 ] || die "container tests failed (pytest exit $rc)"
 step_done "passed"
 awk -v a="$T_ALL" -v b="$(date +%s.%N)" 'BEGIN { printf "[test-docker] total %.1f s\n", b - a }' >&2

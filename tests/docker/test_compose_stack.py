@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import time
 import uuid
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -36,17 +38,19 @@ from tests.docker.stack import (
     velocity_excess,
 )
 
-pytestmark = [pytest.mark.docker]
+pytestmark = [pytest.mark.docker, pytest.mark.timeout(900)]
 
-#: The sim's watchdog [s] (mimic sim default) and one state period at 200 Hz [s].
+#: The sim's watchdog [s] (mimic sim default).
 WATCHDOG_S = 0.1
-STATE_PERIOD_S = 1 / 200
 #: Measured q may lead the rate-limited servo target a little (PD tracking overshoot): the same
 #: allowance as the loopback swap and crash tests (tests/reliability), far below any jump.
 VEL_TOL_FACTOR = 1.5
 MOCAP_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap")).resolve()
 CLIP = os.environ.get("MIMIC_TEST_CLIP", "bvh/dataset-2_wave-both-hands_normal_001.bvh")
-STARTUP_TIMEOUT_S = 240  # five containers importing pinocchio/mujoco/rerun at once on 2 loaded cores
+#: Five containers importing pinocchio/mujoco/rerun at once on 2 loaded cores [s].
+STARTUP_TIMEOUT_S = 240
+#: An engine log timestamp (RFC 3339, nanoseconds).
+TIMESTAMP = re.compile(r"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d)(\.\d+)?(Z|[+-]\d\d:\d\d)")
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +59,7 @@ def figures():
     yield out
     path = REPO / "runs" / f"{out.get('session', 'docker')}_docker.json"
     path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(out, indent=1, default=float))
-    print(f"\ncontainer test figures in {path}:\n{json.dumps(out, indent=1, default=float)}")
+    path.write_text(json.dumps(out, indent=1, default=float))  # tests/docker/engine.sh prints it
 
 
 @pytest.fixture(scope="module")
@@ -188,80 +191,134 @@ def test_02_shadow_profile_adds_a_second_solver_on_the_same_stream(stack, figure
     assert {s.sid for s in after} == {"main"}
 
 
-def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, env, figures, vmax):
+def _log_times(text: str, needle: str) -> list[float]:
+    """Engine timestamps (``compose logs --timestamps``) of the log lines containing ``needle`` [s, epoch]."""
+    out = []
+    for line in text.splitlines():
+        m = TIMESTAMP.search(line)
+        if m and needle in line:
+            frac = (m.group(2) or ".0")[:7]  # datetime takes microseconds at most
+            stamp = datetime.fromisoformat(m.group(1) + frac + (m.group(3).replace("Z", "+00:00")))
+            out.append(stamp.timestamp())
+    return out
+
+
+def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, figures, vmax):
+    """`network disconnect` of the sim's container: its watchdog holds, reconnecting resumes smoothly.
+
+    While cut off, nothing of the sim reaches the network, so the hold is timed from the sim's own
+    log line (engine timestamp) against the last state the observer received before the cut.
+    """
     compose, bus = stack
-    simbus = BusLog(REPO / "runs" / f"{env['MIMIC_SESSION']}_sim.jsonl")
-    compose("up", "-d", "observer-sim")
-    simbus.wait(lambda: simbus.ready and len(simbus.states) > 50, 120, "observer in the sim's namespace")
     sim_id = compose.container("sim")
     network = f"{compose.project}_default"
     t_cut = time.time()
     cut_s = engine("network", "disconnect", network, sim_id)
-    t_hold = simbus.wait(lambda: any(s.hold and s.t > t_cut for s in simbus.states), 10, "watchdog hold")
-    time.sleep(1.5)
+
+    def hold_logged() -> list[float]:
+        logs = compose("logs", "--no-color", "--timestamps", "sim", check=False).stdout
+        return [t for t in _log_times(logs, "watchdog: no command") if t >= t_cut - 0.5]
+
+    deadline = time.monotonic() + 10
+    while not hold_logged() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    holds = hold_logged()
+    bus.poll()
+    states_in_cut = [s for s in bus.states if s.t > t_cut + cut_s + 0.5]
+    time.sleep(1.0)
     t_back = time.time()
     reconnect_s = engine("network", "connect", network, sim_id)
-    t_resume = bus.wait(lambda: bool(bus.fresh_states(t_back)), 60, "stream resumed after reconnect")
+    t_resume = bus.wait(
+        lambda: bool(bus.fresh_states(t_back)), 90, "stream resumed after reconnect", _context(compose, "sim")
+    )
     t_resume = bus.fresh_states(t_back)[0].t
     time.sleep(1.0)
-    simbus.poll()
-    states = simbus.states_between(t_cut - 1.0)
-    first_hold = next(s for s in states if s.hold and s.t > t_cut)
-    last_cmd = max(c["t"] for c in simbus.cmds if c["sid"] == "main" and c["t"] < first_hold.t)
-    held = [s for s in states if s.hold and first_hold.t <= s.t < t_back]
-    settled = [s for s in held if s.st >= first_hold.st + 0.5]
-    excess, pairs, at = velocity_excess(states, vmax)
+    bus.poll()
+    last_before = max((s.t for s in bus.states if holds and s.t < holds[0]), default=float("nan"))
+    back = [s for s in bus.states if s.t >= t_back]
+    excess, pairs, at = velocity_excess(bus.states_between(t_back), vmax)
     r = {
         "disconnect_cmd_s": round(cut_s, 2),
-        "hold_after_last_command_s": round(first_hold.t - last_cmd, 3),
-        "hold_after_disconnect_s": round(t_hold - t_cut, 3),
-        "held_states": len(held),
-        "hold_drift_settled_rad": float(max(np.max(np.abs(s.q - settled[0].q)) for s in settled)) if settled else None,
+        "hold_logged": len(holds),
+        "hold_after_last_state_s": round(holds[0] - last_before, 3) if holds else None,
+        "states_seen_while_cut": len(states_in_cut),
         "connect_cmd_s": round(reconnect_s, 2),
+        "first_state_after_reconnect_s": round(back[0].t - t_back, 2) if back else None,
+        "first_state_after_reconnect_holding": back[0].hold if back else None,
         "resume_after_reconnect_s": round(t_resume - t_back, 2),
-        "state_velocity_excess_rad_s": round(excess, 3),
+        "state_velocity_excess_after_reconnect_rad_s": round(excess, 3),
         "state_pairs": pairs,
     }
     figures["sim_disconnect"] = r
     ctx = json.dumps(r, indent=1) + "\n" + compose.logs("sim")[-2000:]
-    # The watchdog (100 ms of sim time) holds; one state period and delivery on a loaded machine on top.
-    assert r["hold_after_last_command_s"] <= WATCHDOG_S + 0.05, ctx
-    assert r["hold_drift_settled_rad"] is not None and r["hold_drift_settled_rad"] < 0.01, ctx
-    assert pairs > 100 and excess < VEL_TOL_FACTOR * float(np.max(vmax)), f"jump at t={at - t_cut:.2f} s\n{ctx}"
+    assert holds and not states_in_cut, ctx
+    # The watchdog (100 ms of sim time) holds; the last state before the cut is at most one state
+    # period late, and a loaded machine adds scheduling delay.
+    assert r["hold_after_last_state_s"] <= WATCHDOG_S + 0.05, ctx
+    assert back and back[0].hold, ctx  # still holding its pose when the network returns
+    # Commands resume from the held pose at the velocity limit: no jump.
+    assert pairs > 100 and excess < VEL_TOL_FACTOR * float(np.max(vmax)), f"jump at t={at - t_back:.2f} s\n{ctx}"
 
 
-def test_04_retarget_killed_comes_back_by_restart_policy_with_its_calibration(stack, figures):
-    compose, bus = stack
-    before = compose.container("retarget")
-    t_kill = time.time()
-    compose("kill", "-s", "KILL", "retarget", label="kill_retarget_cmd")
+def _retarget_back(compose: Compose, bus: BusLog, t_kill: float, how: str) -> dict:
+    """Wait until the retarget's token went and came back and frames flow again; the timings [s]."""
     t_gone = bus.wait(
         lambda: any(e == "DELETE" and n == "retarget/main" and t >= t_kill for t, e, n in bus.alive_events),
         30,
-        "retarget liveliness gone",
+        f"retarget liveliness gone ({how})",
     )
     t_back = bus.wait(
         lambda: bus.alive_since("retarget/main", t_kill) is not None,
         120,
-        "retarget restarted by its restart policy",
+        f"retarget back ({how})",
         _context(compose, "retarget"),
     )
     t_back = bus.alive_since("retarget/main", t_kill)
-    t_resume = bus.wait(lambda: bool(bus.fresh_states(t_back)), 30, "stream resumed after the retarget restart")
-    logs = compose.logs("retarget")
-    r = {
+    bus.wait(lambda: bool(bus.fresh_states(t_back)), 30, f"stream resumed after the retarget restart ({how})")
+    return {
         "liveliness_gone_s": round(t_gone - t_kill, 2),
         "back_alive_s": round(t_back - t_kill, 2),
-        "resume_after_alive_s": round(t_resume - t_back, 2),
-        "same_container": compose.container("retarget") == before,
-        "calibration_restored": "calibration restored from" in logs,
+        "resume_after_alive_s": round(bus.fresh_states(t_back)[0].t - t_back, 2),
     }
+
+
+def test_04_retarget_killed_comes_back_with_its_calibration(stack, figures):
+    """A crash (SIGKILL of the service process) brings the restart policy in; `compose kill` does not.
+
+    The engines count their own ``kill`` as a manual stop (Docker and podman alike), so after
+    ``docker compose kill -s KILL retarget`` the container stays down until ``docker compose
+    start``. A crash is the kernel killing the process: SIGKILL to every process of the container
+    but its init (``kill -9 -1`` from inside), and then ``restart: unless-stopped`` restarts it.
+    Either way the new process reloads the session's calibration.
+    """
+    compose, bus = stack
+    cid = compose.container("retarget")
+    n_restored = compose.logs("retarget").count("calibration restored from")
+    r: dict = {}
+    t_kill = time.time()
+    compose("exec", "-T", "retarget", "sh", "-c", "kill -9 -1", check=False, label="crash_retarget_cmd")
+    r["crash"] = _retarget_back(compose, bus, t_kill, "crash, restart policy")
+    r["crash"]["same_container"] = compose.container("retarget") == cid
+    t_kill = time.time()
+    compose("kill", "-s", "KILL", "retarget", label="kill_retarget_cmd")
+    time.sleep(3.0)
+    state = compose("ps", "-a", "--format", "{{.State}}", "retarget").stdout.strip()
+    r["engine_kill_state_after_3s"] = state
+    compose("start", "retarget", label="start_retarget_cmd")
+    r["engine_kill"] = _retarget_back(compose, bus, t_kill, "compose kill + start")
+    logs = compose.logs("retarget")
+    r["calibration_restored"] = logs.count("calibration restored from") - n_restored
     figures["retarget_kill"] = r
-    assert r["same_container"] and r["calibration_restored"], json.dumps(r) + "\n" + logs[-3000:]
+    ctx = json.dumps(r, indent=1) + "\n" + logs[-3000:]
+    assert r["crash"]["same_container"], ctx  # restarted in place by the policy, not recreated
+    assert r["calibration_restored"] == 2, ctx
+    assert "running" not in state, ctx  # the engine's kill is a manual stop: no restart
 
 
 def test_05_router_stopped_every_service_reconnects_when_it_returns(stack, figures):
     compose, bus = stack
+    bus.poll()
+    names = sorted(bus.alive)  # every service on the bus, the publisher and the observer included
     t_stop = time.time()
     compose("stop", "--timeout", "5", "zenoh", label="router_stop_cmd")
     time.sleep(2.0)
@@ -269,7 +326,6 @@ def test_05_router_stopped_every_service_reconnects_when_it_returns(stack, figur
     frames_during = len(bus.fresh_states(t_stop + 0.5))
     t_start = time.time()
     compose("start", "zenoh", label="router_start_cmd")
-    names = [*PIPELINE, "solver/shadow", "recorder/observer"]
     t_all = bus.wait(
         lambda: all(bus.alive_since(n, t_start) is not None for n in names),
         120,
@@ -286,7 +342,8 @@ def test_05_router_stopped_every_service_reconnects_when_it_returns(stack, figur
         "stream_resumed_s": round(bus.fresh_states(t_start)[0].t - t_start, 2),
     }
     figures["router_restart"] = r
-    assert frames_during == 0, json.dumps(r)
+    assert set(PIPELINE) <= set(names), json.dumps(r)
+    assert frames_during == 0, json.dumps(r)  # the router carries everything between containers
     assert t_resume >= t_start
 
 
