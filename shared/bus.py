@@ -83,6 +83,10 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         connect = [e for e in os.environ.get("MIMIC_CONNECT", DEFAULT_ROUTER).split(",") if e]
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if json.loads(conf.get_json("mode") or "null") == "client" and conf.get_json("connect/timeout_ms") == "null":
+        # A client cannot start without its router: wait for it (retrying) instead of failing, as
+        # a container started beside the router's must. A lost router is reconnected to likewise.
+        conf.insert_json5("connect/timeout_ms", "-1")
     listen = getattr(args, "listen", None)
     if listen:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
