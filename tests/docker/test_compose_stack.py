@@ -40,11 +40,25 @@ from tests.docker.stack import (
 
 pytestmark = [pytest.mark.docker, pytest.mark.timeout(900)]
 
-#: The sim's watchdog [s] (mimic sim default).
+#: The sim's watchdog [s] and the solver's rate [Hz] (mimic defaults).
 WATCHDOG_S = 0.1
+SOLVER_RATE_HZ = 500.0
 #: Measured q may lead the rate-limited servo target a little (PD tracking overshoot): the same
 #: allowance as the loopback swap and crash tests (tests/reliability), far below any jump.
 VEL_TOL_FACTOR = 1.5
+#: A real clip drives the light wrist links past vmax by PD overshoot in plain streaming already
+#: (measured here: up to ~13 rad/s on the wrist pitch joints, i.e. an excess of ~9 rad/s), so a
+#: fault is judged against the same stream's own peak before it, with this margin.
+BASELINE_MARGIN = 1.2
+BASELINE_S = 20.0
+
+
+def jump_bound(bus: BusLog, t_before: float, vmax: np.ndarray) -> tuple[float, float]:
+    """(allowed velocity excess [rad/s], the stream's own peak excess in the BASELINE_S before ``t_before``)."""
+    baseline, _, _ = velocity_excess(bus.states_between(t_before - BASELINE_S, t_before), vmax)
+    return max(VEL_TOL_FACTOR * float(np.max(vmax)), BASELINE_MARGIN * baseline), baseline
+
+
 MOCAP_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap")).resolve()
 CLIP = os.environ.get("MIMIC_TEST_CLIP", "bvh/dataset-2_wave-both-hands_normal_001.bvh")
 #: Five containers importing pinocchio/mujoco/rerun at once on 2 loaded cores [s].
@@ -151,7 +165,7 @@ def test_01_solver_swap_mid_stream_starts_from_the_measured_state(stack, figures
     # The swap: from the old solver's last commands to a second after the stream resumed.
     window = bus.states_between(old_last - 0.5, t_resume + 1.0)
     excess, pairs, at = velocity_excess(window, vmax)
-    baseline, _, _ = velocity_excess(bus.states_between(t_swap - 10.0, old_last - 0.5), vmax)
+    bound, baseline = jump_bound(bus, old_last - 0.5, vmax)
     r = {
         "compose_up_s": compose.timings["swap_up_cmd"],
         "new_solver_alive_after_swap_s": round(t_alive - t_swap, 2),
@@ -160,6 +174,7 @@ def test_01_solver_swap_mid_stream_starts_from_the_measured_state(stack, figures
         "first_cmd_vs_state_rad": float(np.max(np.abs(np.asarray(first["q"]) - before[-1].q))),
         "state_velocity_excess_rad_s": round(excess, 3),
         "state_velocity_excess_before_swap_rad_s": round(baseline, 3),
+        "state_velocity_excess_bound_rad_s": round(bound, 3),
         "state_pairs": pairs,
         "holding_states": sum(s.hold for s in window),
         "algo_in_log": "wqp" in logs,
@@ -169,11 +184,12 @@ def test_01_solver_swap_mid_stream_starts_from_the_measured_state(stack, figures
     figures["swap"] = r
     ctx = json.dumps(r, indent=1) + "\n" + logs[-3000:]
     assert r["algo_in_log"] and r["initialised_from_measured"] and not r["started_from_rest"], ctx
-    # The new solver's first command continues from where the robot is (one step at most).
-    assert r["first_cmd_vs_state_rad"] <= float(np.max(vmax)) * 0.05, ctx
+    # The new solver's first command continues from where the (held) robot is: one solver tick at
+    # vmax at most (a start from the rest pose would be tenths of a radian away on a real clip).
+    assert r["first_cmd_vs_state_rad"] <= 2 * float(np.max(vmax)) / SOLVER_RATE_HZ, ctx
     assert r["resume_after_alive_s"] <= 1.0, ctx
-    # No joint moved faster than its limit across the swap (the sim held, then resumed smoothly).
-    assert pairs > 100 and excess < VEL_TOL_FACTOR * float(np.max(vmax)), f"jump at t={at - old_last:.2f} s\n{ctx}"
+    # No joint jumped across the swap: no faster than its limit, up to the stream's own overshoot.
+    assert pairs > 100 and excess <= bound, f"jump at t={at - old_last:.2f} s\n{ctx}"
 
 
 def test_02_shadow_profile_adds_a_second_solver_on_the_same_stream(stack, figures):
@@ -224,7 +240,7 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
         out = []
         for line in logs.splitlines():
             m = re.search(r"no command for (\d+) ms", line)
-            if m and (t := _log_times(line, "watchdog")[0]) >= t_cut - 0.5:
+            if m and (t := _log_times(line, "watchdog")[0]) >= t_cut:
                 out.append((t, float(m.group(1))))
         return out
 
@@ -247,6 +263,7 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
     last_before = max((s.t for s in bus.states if holds and s.t < holds[0]), default=float("nan"))
     back = [s for s in bus.states if s.t >= t_back]
     excess, pairs, at = velocity_excess(bus.states_between(t_back), vmax)
+    bound, baseline = jump_bound(bus, t_cut, vmax)
     r = {
         "disconnect_cmd_s": round(cut_s, 2),
         "hold_logged": len(holds),
@@ -258,6 +275,7 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
         "first_state_after_reconnect_holding": back[0].hold if back else None,
         "resume_after_reconnect_s": round(t_resume - t_back, 2),
         "state_velocity_excess_after_reconnect_rad_s": round(excess, 3),
+        "state_velocity_excess_before_cut_rad_s": round(baseline, 3),
         "state_pairs": pairs,
     }
     figures["sim_disconnect"] = r
@@ -268,7 +286,7 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
     assert r["hold_after_last_state_s"] <= WATCHDOG_S + 0.05, ctx
     assert back and back[0].hold, ctx  # still holding its pose when the network returns
     # Commands resume from the held pose at the velocity limit: no jump.
-    assert pairs > 100 and excess < VEL_TOL_FACTOR * float(np.max(vmax)), f"jump at t={at - t_back:.2f} s\n{ctx}"
+    assert pairs > 100 and excess <= bound, f"jump at t={at - t_back:.2f} s\n{ctx}"
 
 
 def _retarget_back(compose: Compose, bus: BusLog, t_kill: float, how: str) -> dict:
