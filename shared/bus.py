@@ -163,6 +163,7 @@ class StatusCounters:
         self._lock = threading.Lock()
         self._counts: dict[str, int] = {}
         self._rejects: dict[str, int] = {}
+        self._outcomes: dict[str, int] = {}
         self._rates: dict[str, _Rate] = {}
         self._last_error = ""
 
@@ -183,6 +184,11 @@ class StatusCounters:
             self._counts["published"] = self._counts.get("published", 0) + 1
             self._counts[f"published.{stream}"] = self._counts.get(f"published.{stream}", 0) + 1
             self._rates.setdefault(f"out.{stream}", _Rate()).tick(now)
+
+    def outcome(self, name: str) -> None:
+        """Count one result of the service's own work (e.g. a command's status), apart from messages."""
+        with self._lock:
+            self._outcomes[name] = self._outcomes.get(name, 0) + 1
 
     def dropped(self, stream: str, n: int = 1) -> None:
         self._count("dropped", n)
@@ -221,6 +227,7 @@ class StatusCounters:
                 rejects=dict(self._rejects),
                 last_error=self._last_error,
                 extra=dict(self.extra),
+                outcomes=dict(self._outcomes),
             )
 
 
@@ -245,7 +252,6 @@ class LatestSlot:
         self._status = status
         self._stream = stream
         self._decode = decode
-        self._last: Any = None
 
     def put(self, msg: Any) -> None:
         with self._cond:
@@ -265,7 +271,6 @@ class LatestSlot:
                 return None
             raw = self._items.popleft()
         if self._decode is None:
-            self._last = raw
             return raw
         try:
             msg = self._decode(raw)
@@ -277,12 +282,7 @@ class LatestSlot:
             if self._status is not None:
                 self._status.reject("decoder", f"{self._stream}: {type(exc).__name__}: {exc}")
             return None
-        self._last = msg
         return msg
-
-    def peek(self) -> Any:
-        """Newest message taken so far (None before the first)."""
-        return self._last
 
 
 # --------------------------------------------------------------------------- runner

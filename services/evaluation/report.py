@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from services.evaluation.runner import Trace
+from shared.targets import SIDES, elbow_of, wrist_of
 
 AXES = "xyz"
 
@@ -23,6 +24,16 @@ def _rpy(R: np.ndarray) -> np.ndarray:
     return np.degrees(np.unwrap(np.stack([roll, pitch, yaw], axis=1), axis=0))
 
 
+def _finish(fig, axs, path: Path, title: str) -> None:
+    """Legend on the top panel, time axis on the bottom one, title; save as PNG and free the figure."""
+    axs[0].legend(fontsize=7, ncol=2)
+    axs[-1].set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def _xyz_plot(path: Path, traces: dict[str, Trace], target: str, title: str) -> None:
     fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     ref = next(iter(traces.values()))
@@ -31,12 +42,7 @@ def _xyz_plot(path: Path, traces: dict[str, Trace], target: str, title: str) -> 
         for algo, tr in traces.items():
             ax.plot(tr.t, tr.kin_p[target][:, i] * 100, lw=1, label=f"output {algo}")
         ax.set_ylabel(f"{AXES[i]} [cm]")
-    axs[0].legend(fontsize=7, ncol=2)
-    axs[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _finish(fig, axs, path, title)
 
 
 def _rpy_plot(path: Path, traces: dict[str, Trace], target: str, title: str, use_ref: bool) -> None:
@@ -55,12 +61,7 @@ def _rpy_plot(path: Path, traces: dict[str, Trace], target: str, title: str, use
             axs[i].plot(tr.t, r[:, i], lw=1, label=f"output {algo}")
     for i, name in enumerate(("roll", "pitch", "yaw")):
         axs[i].set_ylabel(f"{name} [deg]")
-    axs[0].legend(fontsize=7, ncol=2)
-    axs[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _finish(fig, axs, path, title)
 
 
 def _elbow_3d(path: Path, traces: dict[str, Trace], target: str, title: str) -> None:
@@ -116,17 +117,13 @@ def write_report(result: dict, traces: dict[tuple[str, str], Trace], out: Path) 
         per = {a: tr for (c, a), tr in traces.items() if c == clip}
         if not per:
             continue
-        side = (
-            "left"
-            if np.ptp(next(iter(per.values())).ref_p["left_wrist"], axis=0).sum()
-            > np.ptp(next(iter(per.values())).ref_p["right_wrist"], axis=0).sum()
-            else "right"
-        )
+        ref_p = next(iter(per.values())).ref_p
+        side = max(SIDES, key=lambda s: np.ptp(ref_p[wrist_of(s)], axis=0).sum())  # the arm that moves most
         names = [f"{clip}_{kind}.png" for kind in ("wrist_xyz", "elbow_xyz", "wrist_rpy", "elbow_3d")]
-        _xyz_plot(out / names[0], per, f"{side}_wrist", f"{clip}: {side} wrist x/y/z")
-        _xyz_plot(out / names[1], per, f"{side}_elbow", f"{clip}: {side} elbow x/y/z")
-        _rpy_plot(out / names[2], per, f"{side}_wrist", f"{clip}: {side} wrist r/p/y", True)
-        _elbow_3d(out / names[3], per, f"{side}_elbow", f"{clip}: {side} elbow 3D")
+        _xyz_plot(out / names[0], per, wrist_of(side), f"{clip}: {side} wrist x/y/z")
+        _xyz_plot(out / names[1], per, elbow_of(side), f"{clip}: {side} elbow x/y/z")
+        _rpy_plot(out / names[2], per, wrist_of(side), f"{clip}: {side} wrist r/p/y", True)
+        _elbow_3d(out / names[3], per, elbow_of(side), f"{clip}: {side} elbow 3D")
         figs[clip] = names
     _solve_bar(out / "solve_time.png", result["summary"], PAPER_MS)
 

@@ -1,12 +1,11 @@
 """Ingest figures as JSON: clips loaded, parse speed, the error a broken file gives.
 
-Run: ``python -m services.ingest.bench [--mocap-dir DIR] [--repeat N]``.
+Run: ``mimic bench ingest [--mocap-dir DIR] [--repeat N]``.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import tempfile
 import time
@@ -14,10 +13,10 @@ from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
 from services.ingest.demo_motion import generate_demo_clips
+from shared.paths import mocap_dir
 from shared.report import emit_json
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_MOCAP = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap"))
+DEFAULT_MOCAP = mocap_dir()
 
 
 def _speed(path: Path, repeat: int) -> tuple[int, float]:
@@ -88,14 +87,12 @@ def run(mocap_dir: Path, repeat: int) -> dict:
     return res
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--mocap-dir", type=Path, default=DEFAULT_MOCAP)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Flags of ``mimic bench ingest``."""
+    p.add_argument("--mocap-dir", type=Path, default=DEFAULT_MOCAP, help="real clips (bvh/, c3d/)")
     p.add_argument("--repeat", type=int, default=3, help="loads per file (median time)")
-    a = p.parse_args(argv)
-    emit_json(run(a.mocap_dir, a.repeat))
+
+
+def main(args: argparse.Namespace) -> int:
+    emit_json(run(args.mocap_dir, args.repeat))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -12,9 +12,10 @@ Per frame and per target (both wrists and elbows):
 4. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
-Frames whose ``seq`` or ``stamp`` does not increase are rejected (``step`` returns
-None and ``last_reject`` says why); after ``resync_after`` consecutive rejects the
-source is taken to have restarted (e.g. a replayed clip) and is followed again.
+Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
+ingest sanitizer's): frames whose ``seq`` or ``stamp`` does not increase are rejected
+(``step`` returns None and ``last_reject`` says why); a seq far back, or ``resync_after``
+consecutive rejects, is a restarted source (e.g. a replayed clip), followed again.
 """
 
 from __future__ import annotations
@@ -25,23 +26,24 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from shared.messages import TARGET_NAMES, Header, HumanFrame, Target, TaskTargets
-from shared.robot.pinocchio_model import RobotModel, build_robot_model
-from shared.robot.profile import RobotProfile, load_profile
-from shared.rotations import matrix_to_quat, quat_to_matrix
-
-from .calibration import Calibration, CalibrationError, anthropometric
-from .elbow import ArmGeometry, human_swivel
-from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
-from .orientation import (
+from services.retarget.calibration import Calibration, CalibrationError, anthropometric
+from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
+from services.retarget.orientation import (
     ForearmOrientationMap,
     OrientationMap,
     angular_velocity,
     arm_alignment,
     calibration_orientations,
 )
-from .velocity import LowPassVelocity
-from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+from services.retarget.velocity import LowPassVelocity
+from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+from shared.messages import Header, HumanFrame, Target, TaskTargets
+from shared.robot.pinocchio_model import RobotModel, build_robot_model
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.sequence import SequenceGuard
+from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +58,7 @@ class RetargetConfig:
         samples, seed: Monte Carlo workspace sampling (paper: 12 000 samples).
         with_waist: sample the waist joints too (default: arms only, waist at rest).
         shrink: workspace restriction (default 5-95 % percentile box).
-        gain: incremental mapping gain k [-].
+        incremental_scale: scale k [-] of the incremental mapping U += k dH (a ratio, not a gain [1/s]).
         velocity_tau: velocity low-pass time constant [s] (0 = raw differences).
         max_gap: frame gap [s] above which velocities restart from zero.
         elbow_rotation: publish elbow orientations with use_rotation=True.
@@ -84,12 +86,12 @@ class RetargetConfig:
     """
 
     mode: str = "bounded"
-    robot: str = "g1_29dof"
+    robot: str = DEFAULT_PROFILE
     samples: int = DEFAULT_SAMPLES
     seed: int = 0
     with_waist: bool = False
     shrink: Shrink = field(default_factory=Shrink)
-    gain: float = 1.0
+    incremental_scale: float = 1.0
     velocity_tau: float = 0.05
     max_gap: float = 0.5
     elbow_rotation: bool = False
@@ -108,8 +110,8 @@ class RetargetConfig:
             )
         if self.mode not in MODES:
             raise ValueError(f"retarget mode {self.mode!r}; known: {list(MODES)}")
-        if not self.gain > 0:
-            raise ValueError(f"incremental gain {self.gain} must be > 0")
+        if not self.incremental_scale > 0:
+            raise ValueError(f"incremental_scale {self.incremental_scale} must be > 0")
         if self.resync_after < 1:
             raise ValueError(f"resync_after {self.resync_after} must be >= 1")
 
@@ -155,12 +157,8 @@ class Retargeter:
         self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
         #: side -> robot arm geometry for the swivel elbow placement
         self.arms = (
-            {s: ArmGeometry.measure(self.robot, s) for s in ("left", "right")}
-            if self.config.elbow_placement == "swivel"
-            else {}
+            {s: ArmGeometry.measure(self.robot, s) for s in SIDES} if self.config.elbow_placement == "swivel" else {}
         )
-        #: target -> arm side ("left" / "right")
-        self.side_of = {t: t.split("_")[0] for t in TARGET_NAMES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -177,10 +175,8 @@ class Retargeter:
 
     def _reset_stream(self) -> None:
         """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
-        self._last_seq: int | None = None
-        self._last_stamp: float | None = None
+        self._guard = SequenceGuard(resync_after=self.config.resync_after)
         self._source: str | None = None
-        self._bad_in_row = 0
         self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
@@ -199,7 +195,10 @@ class Retargeter:
         for t in TARGET_NAMES:
             if self.config.mode == "incremental":
                 self._pos_map[t] = IncrementalMap(
-                    np.clip(self.robot_rest[t][0], ws.lower[t], ws.upper[t]), self.config.gain, ws.lower[t], ws.upper[t]
+                    np.clip(self.robot_rest[t][0], ws.lower[t], ws.upper[t]),
+                    self.config.incremental_scale,
+                    ws.lower[t],
+                    ws.upper[t],
                 )
             else:
                 self._pos_map[t] = AbsoluteMap.build(
@@ -231,29 +230,16 @@ class Retargeter:
         self.rejects[reason] += 1
         self.last_reject = (reason, detail)
 
-    def _check_order(self, hdr: Header) -> bool:
-        if self._last_seq is None:
-            return True
-        reason = None
-        if hdr.seq == self._last_seq:
-            reason, detail = "duplicate_seq", f"seq {hdr.seq} repeated"
-        elif hdr.seq < self._last_seq:
-            reason, detail = "seq_backwards", f"seq {hdr.seq} after {self._last_seq}"
-        elif hdr.stamp <= self._last_stamp:
-            reason, detail = "time_backwards", f"stamp {hdr.stamp:.6f} s not after {self._last_stamp:.6f} s"
-        if reason is None:
-            self._bad_in_row = 0
-            return True
-        self._bad_in_row += 1
-        if self._bad_in_row >= self.config.resync_after:
-            log.warning(
-                "source restarted (%d frames out of order, last: %s); resynchronising", self._bad_in_row, detail
-            )
+    def _check_order(self, hdr: Header, source: str) -> bool:
+        verdict = self._guard.check(hdr, source)
+        if verdict.restarted:
+            log.warning("%s; resynchronising", verdict.detail)
             self.counts["resync"] += 1
             self._reset_stream()
-            return True
-        self._reject(reason, detail)
-        return False
+            self._source = source
+        elif not verdict.ok:
+            self._reject(verdict.reason, verdict.detail)
+        return verdict.ok
 
     def step(self, frame: HumanFrame) -> TaskTargets | None:
         """Retarget one frame.
@@ -270,10 +256,11 @@ class Retargeter:
             self.counts["new_source"] += 1
             self._reset_stream()
         self._source = frame.source
-        if not self._check_order(hdr):
+        if not self._check_order(hdr, frame.source):
             return None
-        dt = None if self._last_stamp is None else hdr.stamp - self._last_stamp
-        self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+        last_stamp = self._guard.last_stamp(frame.source)
+        dt = None if last_stamp is None else hdr.stamp - last_stamp
+        self._guard.accept(hdr, frame.source)
         if self._recalibrate:
             try:
                 cal = anthropometric(frame, self.bone_of)
@@ -281,7 +268,7 @@ class Retargeter:
                 if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
                     raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
                 self.set_calibration(cal)
-                self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+                self._guard.accept(hdr, frame.source)
                 dt = None
             except CalibrationError as exc:
                 if self.calibration is None:
@@ -313,14 +300,14 @@ class Retargeter:
             sh = frame.bones.get(f"{side}_shoulder")
             if sh is not None and sh.valid:
                 shoulder = np.asarray(sh.p, dtype=float)
-                swivel = human_swivel(shoulder, cal.rest[f"{side}_elbow"], cal.rest[f"{side}_wrist"])
-                elbows[side] = arm.place(rest[f"{side}_wrist"], swivel)
+                swivel = human_swivel(shoulder, cal.rest[elbow_of(side)], cal.rest[wrist_of(side)])
+                elbows[side] = arm.place(rest[wrist_of(side)], swivel)
         ref = calibration_orientations(self.robot, rest, elbows)
         for t in TARGET_NAMES:
-            side = self.side_of[t]
-            if self.config.orientation_reference == "forearm" and t.endswith("wrist") and side in elbows:
+            side = side_of(t)
+            if self.config.orientation_reference == "forearm" and t in WRISTS and side in elbows:
                 sh = np.asarray(frame.bones[f"{side}_shoulder"].p, dtype=float)
-                h_el = cal.rest[f"{side}_elbow"]
+                h_el = cal.rest[elbow_of(side)]
                 A = arm_alignment(
                     h_el - sh, cal.rest[t] - h_el, elbows[side] - self.arms[side].centre, rest[t] - elbows[side]
                 )
@@ -364,7 +351,7 @@ class Retargeter:
         return q
 
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
-        use_rot = t.endswith("wrist") or self.config.elbow_rotation
+        use_rot = t in WRISTS or self.config.elbow_rotation
         bone = frame.bones.get(self.bone_of[t])
         if bone is None or not bone.valid:
             self.counts[f"invalid_{t}"] += 1
@@ -376,10 +363,10 @@ class Retargeter:
                 pos_map.reanchor()
             p, R = self._held[t]
             return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
-        side = self.side_of[t]
+        side = side_of(t)
         p = None
-        if t.endswith("elbow"):
-            wrist = done.get(f"{side}_wrist")
+        if t in ELBOWS:
+            wrist = done.get(wrist_of(side))
             placed = self._place_elbow(side, frame, wrist.p) if wrist is not None and wrist.valid else None
             if placed is not None:
                 p = self._elbow_in_box(t, placed[0])
@@ -388,7 +375,7 @@ class Retargeter:
             if clamped.any():
                 self.counts[f"clamped_{t}"] += 1
             arm = self.arms.get(side)
-            if t.endswith("wrist") and arm is not None and self.config.mode != "incremental":
+            if t in WRISTS and arm is not None and self.config.mode != "incremental":
                 # Swivel elbows: keep the wrist within the arm's reach so the pair stays reachable.
                 q = arm.reachable(p)
                 if np.any(np.abs(q - p) > 1e-9):

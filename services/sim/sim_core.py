@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from shared.messages import TARGET_NAMES, Header, JointCommand, Pose, RobotState
+from shared.messages import Header, JointCommand, Pose, RobotState
 from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
-from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger("mimic.sim")
 
@@ -68,6 +69,16 @@ class SimConfig:
     contact_exclude_hops: int = 3
     solver_id: str = "main"
 
+    def __post_init__(self) -> None:
+        for name in ("timestep", "watchdog"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
+        if self.max_extrapolation < 0 or self.contact_exclude_hops < 0:
+            raise ValueError(
+                f"max_extrapolation ({self.max_extrapolation} s) and contact_exclude_hops "
+                f"({self.contact_exclude_hops}) must be >= 0"
+            )
+
 
 @dataclass
 class SimCounters:
@@ -93,13 +104,13 @@ class SimCore:
     """MuJoCo robot following JointCommands.
 
     Args:
-        profile: robot profile (object, name or path; default G1).
+        profile: robot profile (object, name or path; default ``DEFAULT_PROFILE``).
         config: servo and watchdog settings.
     """
 
     def __init__(self, profile: RobotProfile | str | None = None, config: SimConfig | None = None):
         self.config = cfg = config or SimConfig()
-        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
         self.robot: MujocoRobot = build_mujoco_robot(
             prof,
             timestep=cfg.timestep,

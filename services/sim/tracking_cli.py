@@ -1,6 +1,6 @@
-"""``mimic sim-track``: measure servo tracking of a sine and print JSON.
+"""``mimic bench sim-track``: measure servo tracking of a sine and print JSON.
 
-Example: ``mimic sim-track`` (1 Hz, 30 degree sine on the 14 arm joints, commands at
+Example: ``mimic bench sim-track`` (1 Hz, 30 degree sine on the 14 arm joints, commands at
 100 Hz, 5 s) prints ``max_error_deg`` and the servo settings; ``--waist`` moves the
 waist too, ``--command-rate 30`` mimics a 30 fps mocap source.
 """
@@ -12,7 +12,7 @@ import json
 import logging
 import sys
 
-from .cli import add_sim_options, sim_config
+from services.sim.cli import add_sim_options, sim_config
 
 log = logging.getLogger("mimic.sim")
 
@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from .tracking import measure_tracking
+    from services.sim.tracking import measure_tracking
 
     results = []
     for rate in args.command_rate:

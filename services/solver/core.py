@@ -34,11 +34,10 @@ from shared.kinematics import (
 )
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
+from shared.targets import ELBOWS, WRISTS
 
-WRISTS = ("left_wrist", "right_wrist")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
-ELBOWS = ("left_elbow", "right_elbow")
 
 
 @dataclass
@@ -104,10 +103,23 @@ class SolverConfig:
     wrist_orientation_level: int = 2
 
     def __post_init__(self) -> None:
+        from services.solver.algorithms import ALGORITHMS
+        from services.solver.qp import QP_BACKENDS
+
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"unknown algorithm {self.algo!r}; known: {sorted(ALGORITHMS)}")
+        if self.qp not in QP_BACKENDS:
+            raise ValueError(f"unknown QP backend {self.qp!r}; known: {sorted(QP_BACKENDS)}")
         if not 1.0 <= self.rate <= 10000.0:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
         if self.wrist_orientation_level not in (1, 2, 3):
             raise ValueError(f"wrist_orientation_level must be 1 (paper), 2 or 3, got {self.wrist_orientation_level}")
+        gains = {"gain": self.gain, "posture_gain": self.posture_gain, "orientation_gain": self.orientation_gain}
+        bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
+        if bad:
+            raise ValueError(f"gains [1/s] must be > 0, got {bad}")
+        if self.smoothing_ticks < 1:
+            raise ValueError(f"smoothing_ticks must be >= 1, got {self.smoothing_ticks}")
 
     @property
     def dt(self) -> float:

@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from services.solver.core import SolverConfig, SolverCore
+from shared import config as shared_config
 from shared.bus import ServiceRunner
 from shared.messages import RobotState, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
@@ -40,21 +41,8 @@ class JointMap:
 
 
 def config_from_args(args: argparse.Namespace) -> SolverConfig:
-    """SolverConfig from the ``mimic solve`` flags."""
-    optional = {
-        "wrist_orientation_cost": args.orientation_weight,
-        "gain": args.gain,
-        "orientation_gain": getattr(args, "orientation_gain", None),
-        "wrist_orientation_level": getattr(args, "wrist_orientation_level", None),
-    }
-    return SolverConfig(
-        algo=args.algo,
-        qp=args.qp,
-        rate=args.rate,
-        solver_id=args.id,
-        smoothing=not args.no_smoothing,
-        **{k: v for k, v in optional.items() if v is not None},
-    )
+    """SolverConfig from the ``mimic solve`` flags (validated by SolverConfig)."""
+    return shared_config.config_from_args(SolverConfig, args)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,11 +51,11 @@ def run(args: argparse.Namespace) -> int:
     core = SolverCore(robot, config_from_args(args))
     joint_map = JointMap(robot.joint_names)
     period = core.dt
-    with ServiceRunner("solver", args, instance=args.id) as svc:
+    with ServiceRunner("solver", args, instance=args.solver_id) as svc:
         log = svc.log
         targets = svc.subscribe_latest(svc.keys.targets, TaskTargets.decode, stream="targets")
         states = svc.subscribe_latest(svc.keys.sim_state, RobotState.decode, stream="sim_state")
-        pub = svc.publisher(svc.keys.command(args.id))
+        pub = svc.publisher(svc.keys.command(args.solver_id))
         svc.status.state = "holding"
         # A solver started mid-stream continues from where the robot is: wait briefly for its state.
         state = states.take(timeout=args.startup_wait)
@@ -81,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
             log.info("no robot state within %.2f s: starting from the rest pose", args.startup_wait)
         log.info(
             "%s/%s with %s, %d joints, %.0f Hz, smoothing %s",
-            args.id,
+            args.solver_id,
             args.algo,
             args.qp,
             robot.nq,
@@ -113,14 +101,13 @@ def run(args: argparse.Namespace) -> int:
             # The solver integrates its own commands (feeding back the servo lag would add it to every
             # step, and re-anchoring on it makes the command jump). Measured joints re-anchor only with
             # --closed-loop, and only while the robot follows this solver (shadows stay open loop).
-            if args.closed_loop and state is not None and state.solver_id == args.id:
+            if args.closed_loop and state is not None and state.solver_id == args.solver_id:
                 q_meas = joint_map(state)
             cmd = core.step(msg, q_meas, t)
             svc.publish(pub, cmd, stream="commands")
             ticks_ms.append(cmd.solve_ms)
             svc.status.state = {"init": "holding", "held": "holding", "failed": "degraded"}.get(cmd.status, "ok")
-            if cmd.status != "ok":
-                svc.status.received(f"status_{cmd.status}")
+            svc.status.outcome(cmd.status)
             if len(ticks_ms) >= STATS_WINDOW:
                 arr = np.asarray(ticks_ms)
                 svc.status.extra.update(
@@ -137,4 +124,6 @@ def run(args: argparse.Namespace) -> int:
                 # Far behind (machine stalled): skip the missed ticks instead of bursting.
                 overruns += 1
                 next_t = t + period
+        # The last status (published on exit) carries the final counts, however few ticks ran.
+        svc.status.extra.update({k: float(v) for k, v in core.counts.items()})
     return 0

@@ -8,9 +8,10 @@ import pytest
 
 from services.evaluation.metrics import reachable_mask, trace_metrics
 from services.evaluation.runner import run_algorithm
-from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
+from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 RATE = 100.0  # target stream [Hz]
 DURATION = 1.5  # [s]
@@ -24,7 +25,7 @@ def robot():
 def joint_trajectory(robot, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Smooth reachable motion around the rest pose: q (n,) [rad], qd (n,) [rad/s] at t [s]."""
     n = robot.nq
-    amp = np.array([0.0 if "waist" in j else 0.25 for j in robot.joint_names])
+    amp = np.array([0.0 if j in robot.profile.waist else 0.25 for j in robot.joint_names])
     w = 2 * np.pi * 0.4
     phase = np.linspace(0.0, np.pi, n)
     s = np.sin(w * t + phase) - np.sin(phase)  # starts at the rest pose
@@ -68,14 +69,19 @@ def test_reachable_fk_targets_give_near_zero_error(robot, algo):
 
 
 def test_unreachable_offset_shows_up_as_that_offset(robot):
-    """Elbow targets 5 cm off a reachable motion (wrists exact): the strict hierarchy keeps the wrists
-    and misses each elbow by at least the part of the offset it cannot absorb, never by more than
-    the offset plus tracking error; the WQP gives some wrist accuracy away."""
+    """Elbow targets 5 cm above a reachable motion (wrists exact): the strict hierarchy keeps the wrists
+    and misses each elbow by the part of the offset the arm cannot absorb around the wrist (measured
+    3.32 cm mean, 4.77 cm max), never by more than the offset plus tracking error; the WQP gives
+    wrist accuracy away (0.31 cm mean) to come closer to the elbows (3.08 cm mean)."""
     off = {e: np.array([0.0, 0.0, 0.05]) for e in ("left_elbow", "right_elbow")}
     targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE), off)
     hqp = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
-    assert hqp["wrist_err_cm"]["mean"] < 0.02 and hqp["wrist_err_cm"]["max"] < 0.1
-    assert 0.5 < hqp["elbow_err_cm"]["mean"] <= 5.0 + 0.05
+    wqp = trace_metrics(run_algorithm(robot, targets, "wqp", qp="daqp"), robot)
+    assert hqp["wrist_err_cm"]["mean"] < 0.02 and hqp["wrist_err_cm"]["max"] < 0.1, hqp["wrist_err_cm"]
+    assert 3.0 < hqp["elbow_err_cm"]["mean"] < 3.6, hqp["elbow_err_cm"]
+    assert hqp["elbow_err_cm"]["max"] <= 5.0 + 0.05, hqp["elbow_err_cm"]
+    assert 0.2 < wqp["wrist_err_cm"]["mean"] < 0.45, wqp["wrist_err_cm"]
+    assert hqp["elbow_err_cm"]["mean"] - 0.5 < wqp["elbow_err_cm"]["mean"] < hqp["elbow_err_cm"]["mean"] - 0.1
 
 
 def test_wqp_weights_trade_elbow_against_wrist(robot):

@@ -9,8 +9,9 @@ from conftest import make_frame, random_quat
 
 from services.retarget.calibration import anthropometric
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from shared.messages import TARGET_NAMES, TaskTargets
+from shared.messages import TaskTargets
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import TARGET_NAMES
 
 #: These tests check seed 000's eqs. (1)-(4) as written: per-axis elbows, eq. 4 against the rest pose.
 #: The product defaults (swivel elbows, forearm-relative orientation) are covered in test_elbow.py.
@@ -156,7 +157,7 @@ def test_bounded_mode_keeps_wild_motion_in_the_box(make, workspace):
 
 
 def test_incremental_mode_starts_at_robot_rest_and_adds_deltas(make, robot14, workspace):
-    r = make(mode="incremental", gain=0.5)
+    r = make(mode="incremental", incremental_scale=0.5)
     out0 = r.step(make_frame(0, 0.0))
     rest = robot14.frame_poses(robot14.q_rest, names=TARGET_NAMES)
     for t in TARGET_NAMES:
