@@ -172,7 +172,7 @@ rc=0
 "$PY" -m pytest -p no:cacheprovider -m docker tests/docker "${@:2}" || rc=$?
 # The figures of every step (also on failure: they say how far it got).
 latest=$(ls -t runs/*_docker.json 2>/dev/null | head -1 || true)
-[ -n "$latest" ] && { echo "[test-docker] figures ($latest):" >&2; cat "$latest" >&2; }
+[ -n "$latest" ] && { echo "[test-docker] figures ($latest):" >&2; cat "$latest" >&2; echo >&2; }
 [ $rc -eq 0 ] || die "container tests failed (pytest exit $rc)"
 step_done "passed"
 awk -v a="$T_ALL" -v b="$(date +%s.%N)" 'BEGIN { printf "[test-docker] total %.1f s\n", b - a }' >&2

@@ -383,6 +383,9 @@ def test_05_router_stopped_every_service_reconnects_when_it_returns(stack, figur
 def test_06_down_leaves_no_container_and_the_recording_reads_back(stack, env, figures):
     compose, _ = stack
     session = env["MIMIC_SESSION"]
+    # No service needs a display: no OpenGL library is looked for (issue 14: libOpenGL.so.0 noise).
+    logs = compose("logs", "--no-color", profiles=("shadow",)).stdout
+    gl_noise = [ln for ln in logs.splitlines() if "Failed to load library" in ln]
     t0 = time.time()
     compose("down", "--timeout", "10", profiles=("shadow",), label="down_cmd")
     left = compose.all_containers()
@@ -393,6 +396,7 @@ def test_06_down_leaves_no_container_and_the_recording_reads_back(stack, env, fi
     figures["down"] = {"down_s": round(time.time() - t0, 2), "containers_left": left, "rrd_bytes": rrd.stat().st_size}
     figures["rrd_entities"] = {k: v for k, v in summary.rows.items() if "solve_ms" in k or "achieved" in k}
     assert left == []
+    assert gl_noise == [], gl_noise[:5]
     # Both solvers' commands are in the recording, and the robot state.
     assert summary.rows.get("/metrics/solve_ms/main", 0) > 0, summary.rows
     assert summary.rows.get("/metrics/solve_ms/shadow", 0) > 0, summary.rows
