@@ -247,8 +247,6 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
 
     # Under load the sim also holds briefly now and then: the cut's hold is the one that lasts it.
     t_hold = bus.wait(lambda: any(k == "hold" for _, k, _ in sim_events()), 20, "watchdog hold logged")
-    bus.poll()
-    states_in_cut = [s for s in bus.states if s.t > t_cut + cut_s + 0.5]
     time.sleep(1.0)
     t_back = time.time()
     reconnect_s = engine("network", "connect", network, sim_id)
@@ -263,6 +261,12 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
     hold = next((events[i] for i in range(resumed - 1, -1, -1) if events[i][1] == "hold"), None) if resumed else None
     hold_t = hold[0] if hold else float("nan")
     last_before = max((s.t for s in bus.states if s.t < hold_t), default=float("nan"))
+    # Judged on the sim's own clock, so late delivery on a loaded machine cannot blur it: no state
+    # the sim published after the hold began got out before the network was back, and every state
+    # of the hold is holding.
+    hold_st, resume_st = (hold[2], events[resumed][2]) if hold else (float("inf"), float("inf"))
+    states_in_cut = [s for s in bus.states if s.st > hold_st + 0.05 and s.t < t_back]
+    during_hold = [s for s in bus.states if hold_st + 0.01 < s.st < resume_st]
     back = [s for s in bus.states if s.t >= t_back]
     excess, pairs, at = velocity_excess(bus.states_between(t_back), vmax)
     bound, baseline = jump_bound(bus, t_cut, vmax)
@@ -275,7 +279,8 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
         "states_seen_while_cut": len(states_in_cut),
         "connect_cmd_s": round(reconnect_s, 2),
         "first_state_after_reconnect_s": round(back[0].t - t_back, 2) if back else None,
-        "first_state_after_reconnect_holding": back[0].hold if back else None,
+        "held_states_received": len(during_hold),
+        "held_states_not_holding": sum(not s.hold for s in during_hold),
         "resume_after_reconnect_s": round(t_resume - t_back, 2),
         "state_velocity_excess_after_reconnect_rad_s": round(excess, 3),
         "state_velocity_excess_before_cut_rad_s": round(baseline, 3),
@@ -288,7 +293,7 @@ def test_03_sim_cut_off_the_network_holds_then_resumes_without_a_jump(stack, fig
     # from the last state out to that log line is reported: the sim time between them is the
     # watchdog's, the wall time adds the load (the sim runs behind real time on a loaded machine).
     assert hold is not None and not states_in_cut, ctx
-    assert back and back[0].hold, ctx  # still holding its pose when the network returns
+    assert r["held_states_not_holding"] == 0, ctx  # the pose is held until commands resume
     # Commands resume from the held pose at the velocity limit: no jump.
     assert pairs > 50 and excess <= bound, f"jump at t={at - t_back:.2f} s\n{ctx}"
 
