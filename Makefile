@@ -1,5 +1,6 @@
 # Two commands for a new user: `make demo` and `make test`. Both (re)create .venv and
-# install everything from PyPI by name when pyproject.toml changed.
+# install everything from PyPI by name when pyproject.toml changed. Setup includes the `train`
+# extra (CPU PyTorch) so the posture-training tests run; the services themselves do not need it.
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -14,7 +15,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
 	touch $(STAMP)
 
 demo: setup

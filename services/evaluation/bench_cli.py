@@ -17,6 +17,7 @@ BENCHES = {
     "ingest": ("services.ingest.bench", "clips loaded, parse speed, the error a broken file gives"),
     "retarget": ("services.retarget.bench", "retargeting figures per mapping mode over the real clips"),
     "sim-track": ("services.sim.tracking_cli", "servo tracking of a sine in the MuJoCo sim"),
+    "posture": ("services.posture.bench", "numpy posture-policy inference per control tick, both arms"),
 }
 
 

@@ -74,6 +74,10 @@ def trace_metrics(trace: Trace, robot: RobotModel, reachable: np.ndarray | None 
         "ticks": len(trace.t),
         "status_counts": {s: int(c) for s, c in zip(*np.unique(trace.status, return_counts=True))},
     }
+    ticks = trace.counts.get("policy_ticks", 0)
+    if ticks:  # a posture policy ran: how often its gate sent an arm to the rest posture instead
+        m["policy_ticks"] = int(ticks)
+        m["gate_closed_fraction"] = trace.counts.get("gate_closed", 0) / (2.0 * ticks)
     if reachable is not None and len(reachable) == len(trace.t):
         m["reachable_fraction"] = float(reachable.mean())
         m["wrist_err_cm_reachable"] = _stats(

@@ -30,11 +30,12 @@ from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
+from services.solver.targets import TargetTracker
 from services.solver.wqp import WeightedQp
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import quat_to_matrix
-from shared.targets import TARGET_NAMES, WRISTS
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
@@ -72,6 +73,7 @@ class Trace:
     res1: np.ndarray
     sim_p: dict[str, np.ndarray] = field(default_factory=dict)
     sim_R: dict[str, np.ndarray] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -94,6 +96,7 @@ def run_algorithm(
     settle: float = 0.5,
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
+    wrist_only: bool = False,
 ) -> Trace:
     """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
 
@@ -104,12 +107,21 @@ def run_algorithm(
         solver: further :class:`SolverConfig` fields (e.g. ``wrist_orientation_level``).
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
+        wrist_only: the solver gets the wrist targets only (:func:`wrist_only_targets`); errors are
+            still measured against the full targets (the operator's retargeted elbows).
     """
     core = _solver_core(robot, algo, qp, rate, solver, wqp_weights)
     simcore = _sim_core(robot) if sim else None
     dt = 1.0 / rate
-    rec = _Recorder(robot, core, simcore)
+    # The reference the errors are measured against: the full targets, even when the solver sees less.
+    reference = TargetTracker(core.config.target_horizon, core.config.target_timeout)
+    fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
+    rec = _Recorder(robot, core, simcore, reference)
     for t, msg in _arrivals(targets, settle, dt):
+        if msg is not None:
+            reference.update(msg, t)
+            if fed is not None:
+                msg = fed.get(id(msg)) or wrist_only_targets([msg])[0]
         cmd = core.step(msg, None, t)
         if simcore is not None:
             simcore.advance(cmd, dt)  # the sim maps commands by joint name
@@ -166,8 +178,9 @@ def _arrivals(targets: list[TaskTargets], settle: float, dt: float) -> Iterator[
 class _Recorder:
     """Collects one scored tick at a time: references, kinematic and sim poses, commands."""
 
-    def __init__(self, robot: RobotModel, core: SolverCore, simcore=None) -> None:
+    def __init__(self, robot: RobotModel, core: SolverCore, simcore=None, reference: TargetTracker | None = None):
         self.robot, self.core, self.simcore = robot, core, simcore
+        self.reference = core.tracker if reference is None else reference
         self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
         self.ref_p = {n: [] for n in TARGET_NAMES}
         self.ref_R = {n: [] for n in WRISTS}
@@ -184,7 +197,7 @@ class _Recorder:
             # The command of tick t is the pose for t + dt (the sim reaches it over the next tick,
             # the solver's feed-forward aims there): score it against the reference at t + dt as
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
-            s = self.core.tracker.sample(n, t + dt)
+            s = self.reference.sample(n, t + dt)
             self.ref_ok[n].append(s is not None and not s.held)
             self.ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
             self.kin_p[n].append(poses[n][0])
@@ -228,7 +241,18 @@ class _Recorder:
             res1=rec["res1"],
             sim_p=arr(self.sim_p),
             sim_R=arr(self.sim_R),
+            counts=dict(self.core.counts),
         )
+
+
+def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:
+    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms."""
+    out = []
+    for tt in targets:
+        tg = {n: (replace(t, valid=False, v=np.zeros(3), w=np.zeros(3)) if n in ELBOWS else t)
+              for n, t in tt.targets.items()}  # fmt: skip
+        out.append(replace(tt, targets=tg, upper_arms={}))
+    return out
 
 
 def _at_rest(tt: TaskTargets) -> TaskTargets:

@@ -19,6 +19,7 @@ from services.ingest.demo_motion import DEMO_MOTIONS, generate_demo_clips
 from services.ingest.playback import Playback
 from shared.bus import ServiceRunner, add_bus_args
 from shared.report import emit_json
+from shared.wrist_only import wrists_only
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--up", default="auto", help="file up axis: auto, y, z")
     parser.add_argument(
         "--wait-subscriber", type=float, default=2.0, help="wait up to this long [s] for a subscriber before starting"
+    )
+    parser.add_argument(
+        "--wrist-only",
+        action="store_true",
+        help="send the hand bones only, as a VR controller or hand tracker would (no shoulders, no elbows)",
     )
     parser.add_argument("--instance", default="main", help="status instance name")
     add_bus_args(parser)
@@ -90,7 +96,8 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
             if lag > 0.5 / (clip.fps * args.rate):
                 late += 1
             worst = max(worst, lag)
-            svc.publish(pub, player.step(time.time_ns()), stream="frames")
+            frame = player.step(time.time_ns())
+            svc.publish(pub, wrists_only(frame) if args.wrist_only else frame, stream="frames")
             n += 1
             svc.status.extra["late_frames"] = late
         wall = time.monotonic() - start
@@ -102,6 +109,7 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
         "wall_s": round(wall, 3),
         "fps": clip.fps,
         "rate": args.rate,
+        "wrist_only": bool(args.wrist_only),
     }
 
 

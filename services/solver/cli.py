@@ -25,6 +25,7 @@ FLAGS = {
     "solver_id": {"flag": "--id", "help": "solver id: commands go to mimic/<session>/solver/<id>/command"},
     "wrist_orientation_cost": {"flag": "--orientation-weight"},
     "wrist_orientation_level": {"choices": (1, 2, 3)},
+    "posture_policy": {"metavar": "FILE"},
 }
 
 

@@ -8,6 +8,7 @@ Subscribes (latest only) to ``keys.targets`` (TaskTargets) and
 from __future__ import annotations
 
 import argparse
+import logging
 import time
 
 import numpy as np
@@ -48,7 +49,13 @@ def config_from_args(args: argparse.Namespace) -> SolverConfig:
 def run(args: argparse.Namespace) -> int:
     """Run the solver service until SIGINT/SIGTERM."""
     robot = build_robot_model(args.robot, with_waist=not args.no_waist)
-    core = SolverCore(robot, config_from_args(args))
+    from services.posture.policy import PolicyError
+
+    try:
+        core = SolverCore(robot, config_from_args(args))
+    except PolicyError as exc:
+        logging.getLogger("mimic.solve").error("%s", exc)
+        return 2
     joint_map = JointMap(robot.joint_names)
     period = core.dt
     with ServiceRunner("solver", args, instance=args.solver_id) as svc:
