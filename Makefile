@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # Real mocap clips, read at run time from beside the repo (shared/paths.py reads the same setting).
 MIMIC_MOCAP_DIR ?= ../shared/data/mocap
 
-.PHONY: setup demo test lint format bench eval clean
+.PHONY: setup demo test test-docker lint format bench eval clean
 
 setup: $(STAMP)
 
@@ -24,6 +24,11 @@ demo: setup
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
+
+# The stack in containers through `docker compose` (tests/docker). With podman (default) it installs
+# podman, builds a local base image and mimic:latest as root; MIMIC_ENGINE=docker uses a running Docker.
+test-docker: setup
+	tests/docker/engine.sh
 
 lint: setup
 	$(BIN)/ruff check .

@@ -4,7 +4,7 @@
   (``--mode --connect --listen --config --session``) and ``ZENOH_CONFIG``.
   Default: peer mode, multicast scouting off, connecting to the local router
   that ``mimic up`` starts on ``tcp/127.0.0.1:7447`` (``MIMIC_CONNECT``
-  overrides it, as docker-compose does).
+  overrides it, as docker-compose does; ``MIMIC_MODE`` the mode: client in containers).
 * :class:`ServiceRunner`: session, liveliness token, periodic
   :class:`~shared.messages.ServiceStatus`, SIGINT/SIGTERM handling.
 * :class:`LatestSlot`: newest-sample-wins mailbox for streams where staleness
@@ -56,7 +56,12 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--session", default=os.environ.get("MIMIC_SESSION", DEFAULT_SESSION), help="key prefix mimic/<session>"
     )
-    g.add_argument("--mode", choices=("peer", "client", "router"), default=None, help="Zenoh mode (default peer)")
+    g.add_argument(
+        "--mode",
+        choices=("peer", "client", "router"),
+        default=os.environ.get("MIMIC_MODE") or None,
+        help="Zenoh mode (default $MIMIC_MODE or peer)",
+    )
     g.add_argument(
         "--connect",
         action="append",
@@ -89,6 +94,10 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         connect = [e for e in os.environ.get("MIMIC_CONNECT", DEFAULT_ROUTER).split(",") if e]
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if json.loads(conf.get_json("mode") or "null") == "client" and conf.get_json("connect/timeout_ms") == "null":
+        # A client cannot start without its router: wait for it (retrying) instead of failing, as
+        # a container started beside the router's must. A lost router is reconnected to likewise.
+        conf.insert_json5("connect/timeout_ms", "-1")
     listen = getattr(args, "listen", None)
     if listen:
         conf.insert_json5("listen/endpoints", json.dumps(listen))

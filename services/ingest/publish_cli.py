@@ -9,11 +9,13 @@ across loops), ``hdr.t0`` = ``time.time_ns()`` at publish.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import threading
 import time
 from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
+from services.ingest.demo_motion import DEMO_MOTIONS, generate_demo_clips
 from services.ingest.playback import Playback
 from shared.bus import ServiceRunner, add_bus_args
 from shared.report import emit_json
@@ -21,7 +23,11 @@ from shared.wrist_only import wrists_only
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="clip to play (.bvh or .c3d)")
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("file", type=Path, nargs="?", help="clip to play (.bvh or .c3d)")
+    src.add_argument(
+        "--demo", choices=sorted(DEMO_MOTIONS), default=None, help="play a bundled demo motion instead of a file"
+    )
     parser.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1 = real time)")
     parser.add_argument("--loop", action="store_true", help="loop until stopped")
     parser.add_argument("--start", type=float, default=None, help="clip time to start at [s]")
@@ -43,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_for_playback(args: argparse.Namespace):
     """Load and slice the clip named by ``args`` (raises ClipError)."""
+    if args.file is None:
+        # The demo motion is generated, not shipped: write it where nothing else lives.
+        args.file = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-demo-"))[list(DEMO_MOTIONS).index(args.demo)]
     opts = {"up": args.up}
     if Path(args.file).suffix.lower() == ".bvh":
         opts["units"] = args.units

@@ -6,8 +6,6 @@ import argparse
 import logging
 import os
 
-# MuJoCo reads MUJOCO_GL when first imported; EGL renders without a display.
-os.environ.setdefault("MUJOCO_GL", "egl")
 # Software GL (llvmpipe) would otherwise take every core away from the physics loop.
 os.environ.setdefault("LP_NUM_THREADS", "1")
 
@@ -74,6 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    # MuJoCo picks its GL backend from MUJOCO_GL when first imported (below). EGL renders without a
+    # display; without --render no GL at all, so no OpenGL library is loaded (or missed) in vain.
+    os.environ.setdefault("MUJOCO_GL", "egl" if args.render else "disable")
     from services.sim.node import run
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
