@@ -18,8 +18,8 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
-from services.solver.algorithms import ALGORITHMS
 from services.solver.core import SolverConfig
+from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
 log = logging.getLogger("mimic.eval")
@@ -76,9 +76,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--orientation-reference",
-        default=RetargetConfig().orientation_reference,
+        default=None,
         choices=ORIENTATION_REFERENCES,
-        help="eq. 4 orientation mapping: forearm-relative (default), calibration posture, or the profile rest",
+        help="eq. 4 orientation mapping: forearm-relative (default; posture with --wrist-only), calibration "
+        "posture, or the profile rest",
     )
     p.add_argument(
         "--wqp-weights",
@@ -91,6 +92,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows, eq. 4 against "
         "the rest pose",
     )
+    p.add_argument(
+        "--wrist-only",
+        action="store_true",
+        help="the solver sees the wrist targets only (a VR-controller source); runs, per clip, the full-mocap "
+        "reference (full:<algo>), wrist-only with the rest-posture level (wrist-only:<algo>) and, with "
+        "--posture-policy, wrist-only with the learned posture (wrist-only+policy:<algo>); elbow errors are "
+        "against the operator's retargeted elbows. Orientations default to --orientation-reference posture "
+        "(forearm reads the elbow)",
+    )
+    p.add_argument("--posture-policy", default=None, help="learned posture policy file (mimic posture train)")
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -103,8 +114,16 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     sim = not args.no_sim
     # The level-1 tick mask comes from the strict hierarchy, so run it first.
     order = [REFERENCE_ALGO] + [a for a in algos if a != REFERENCE_ALGO]
+    wrist_only, policy = getattr(args, "wrist_only", False), getattr(args, "posture_policy", None)
+    # (label, algo, wrist-only, solver settings) of every run on a clip
+    runs = [(a, a, False, solver) for a in order]
+    if wrist_only:
+        runs = [(f"full:{REFERENCE_ALGO}", REFERENCE_ALGO, False, solver)]
+        runs += [(f"wrist-only:{a}", a, True, solver) for a in algos]
+        if policy:
+            runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
-    bar = tqdm(total=len(args.clips) * len(order), desc="eval", unit="run", file=sys.stderr)
+    bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
     for path in args.clips:
         try:
             clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
@@ -113,8 +132,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
         report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
-        for algo in order:
-            bar.set_postfix_str(f"{clip.name[:28]} {algo}")
+        for label, algo, wo, extra in runs:
+            bar.set_postfix_str(f"{clip.name[:28]} {label}")
             tr = run_algorithm(
                 robot,
                 targets,
@@ -122,14 +141,15 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                 qp=args.qp,
                 rate=args.rate,
                 sim=sim,
-                solver=solver,
+                solver=extra,
                 wqp_weights=wqp_weights,
+                wrist_only=wo,
             )
-            if algo == REFERENCE_ALGO:
+            if algo == REFERENCE_ALGO and not wo:
                 mask = reachable_mask(tr)
-            if algo in algos:
-                entry["algos"][algo] = trace_metrics(tr, robot, mask, report, sim=sim)
-                traces[(clip.name, algo)] = tr
+            if algo in algos or wrist_only:
+                entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
+                traces[(clip.name, label)] = tr
             bar.update(1)
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         clips_out.append(entry)
@@ -176,8 +196,11 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     defaults = RetargetConfig()
     level = getattr(args, "wrist_orientation_level", None)
     elbows = getattr(args, "elbow_placement", defaults.elbow_placement)
-    oref = getattr(args, "orientation_reference", defaults.orientation_reference)
     mapping = getattr(args, "mapping", defaults.mode)
+    wrist_only = getattr(args, "wrist_only", False)
+    if getattr(args, "posture_policy", None) and not wrist_only:
+        raise SystemExit("--posture-policy is used with --wrist-only (with full targets the solver does not use it)")
+    oref = getattr(args, "orientation_reference", None) or ("posture" if wrist_only else defaults.orientation_reference)
     if getattr(args, "paper", False):
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
@@ -211,6 +234,8 @@ def _settings_json(
             "damping": list(SolverConfig().damping),
         },
         "dof": dof,
+        "wrist_only": getattr(args, "wrist_only", False),
+        "posture_policy": getattr(args, "posture_policy", None),
         "sim": not args.no_sim,
         "reachable_tol": REACHABLE_TOL,
         "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "

@@ -136,6 +136,10 @@ def trace_metrics(
         m["self_collision_source"] = "sim contacts" if sim else "kinematic clearance < 0"
         c = trace.clearance[np.isfinite(trace.clearance)]
         m["min_clearance_cm"] = float(cm * c.min()) if c.size else None
+    ticks = trace.counts.get("policy_ticks", 0)
+    if ticks:  # a posture policy ran: how often its gate sent an arm to the rest posture instead
+        m["policy_ticks"] = int(ticks)
+        m["gate_closed_fraction"] = trace.counts.get("gate_closed", 0) / (2.0 * ticks)
     if reachable is not None and len(reachable) == len(trace.t):
         m["level1_met_fraction"] = float(reachable.mean())
         m["reachable_fraction"] = float(reachable.mean())

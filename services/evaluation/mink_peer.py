@@ -60,6 +60,9 @@ class MinkPeer:
         self.dt = 1.0 / rate
         self.solver = solver
         cfg = SolverConfig()
+        #: the solver settings the tracker and the eval read (as :class:`SolverCore` has them)
+        self.config = cfg
+        self.counts: dict[str, int] = {}
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         mj = build_mujoco_robot(robot.profile, joint_names=robot.joint_names)
         self.mj = mj

@@ -31,11 +31,12 @@ from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
+from services.solver.targets import TargetTracker
 from services.solver.wqp import WeightedQp
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import quat_to_matrix
-from shared.targets import TARGET_NAMES, WRISTS
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
@@ -77,6 +78,7 @@ class Trace:
     collide: np.ndarray | None = None
     clearance: np.ndarray | None = None
     dt: float = 0.002
+    counts: dict[str, int] = field(default_factory=dict)
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -100,6 +102,7 @@ def run_algorithm(
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
     collisions: bool = True,
+    wrist_only: bool = False,
 ) -> Trace:
     """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
 
@@ -111,6 +114,8 @@ def run_algorithm(
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
         collisions: record self-collisions and clearances (:mod:`.collisions`).
+        wrist_only: the solver gets the wrist targets only (:func:`wrist_only_targets`); errors are
+            still measured against the full targets (the operator's retargeted elbows).
     """
     core = MinkPeer(robot, rate) if algo == MINK else _solver_core(robot, algo, qp, rate, solver, wqp_weights)
     simcore = _sim_core(robot) if sim else None
@@ -120,8 +125,15 @@ def run_algorithm(
         from services.evaluation.collisions import SelfCollision
 
         coll = SelfCollision(robot.profile, simcore.joint_names if simcore is not None else robot.joint_names)
-    rec = _Recorder(robot, core, simcore, coll)
+    # The reference the errors are measured against: the full targets, even when the solver sees less.
+    reference = TargetTracker(core.config.target_horizon, core.config.target_timeout)
+    fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
+    rec = _Recorder(robot, core, simcore, reference, coll)
     for t, msg in _arrivals(targets, settle, dt):
+        if msg is not None:
+            reference.update(msg, t)
+            if fed is not None:
+                msg = fed.get(id(msg)) or wrist_only_targets([msg])[0]
         cmd = core.step(msg, None, t)
         if simcore is not None:
             simcore.advance(cmd, dt)  # the sim maps commands by joint name
@@ -178,8 +190,11 @@ def _arrivals(targets: list[TaskTargets], settle: float, dt: float) -> Iterator[
 class _Recorder:
     """Collects one scored tick at a time: references, kinematic and sim poses, commands."""
 
-    def __init__(self, robot: RobotModel, core, simcore=None, coll=None) -> None:
+    def __init__(
+        self, robot: RobotModel, core, simcore=None, reference: TargetTracker | None = None, coll=None
+    ) -> None:
         self.robot, self.core, self.simcore, self.coll = robot, core, simcore, coll
+        self.reference = core.tracker if reference is None else reference
         self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1", "collide", "clear")}
         self.ref_p = {n: [] for n in TARGET_NAMES}
         self.ref_R = {n: [] for n in WRISTS}
@@ -196,7 +211,7 @@ class _Recorder:
             # The command of tick t is the pose for t + dt (the sim reaches it over the next tick,
             # the solver's feed-forward aims there): score it against the reference at t + dt as
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
-            s = self.core.tracker.sample(n, t + dt)
+            s = self.reference.sample(n, t + dt)
             self.ref_ok[n].append(s is not None and not s.held)
             self.ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
             self.kin_p[n].append(poses[n][0])
@@ -251,7 +266,18 @@ class _Recorder:
             collide=rec["collide"].astype(bool) if self.coll is not None else None,
             clearance=rec["clear"].astype(float) if self.coll is not None else None,
             dt=dt,
+            counts=dict(self.core.counts),
         )
+
+
+def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:
+    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms."""
+    out = []
+    for tt in targets:
+        tg = {n: (replace(t, valid=False, v=np.zeros(3), w=np.zeros(3)) if n in ELBOWS else t)
+              for n, t in tt.targets.items()}  # fmt: skip
+        out.append(replace(tt, targets=tg, upper_arms={}))
+    return out
 
 
 def _at_rest(tt: TaskTargets) -> TaskTargets:

@@ -28,7 +28,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from services.retarget.calibration import Calibration, CalibrationError, anthropometric
+from services.retarget.calibration import (
+    DEFAULT_ARM_LENGTH,
+    Calibration,
+    CalibrationError,
+    anthropometric,
+    from_wrists,
+)
 from services.retarget.elbow import ArmGeometry, human_swivel
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from services.retarget.orientation import (
@@ -39,14 +45,17 @@ from services.retarget.orientation import (
     calibration_orientations,
 )
 from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
+from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
 from shared.messages import Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.robot.profile import upper_arm_frame as upper_arm_link
 from shared.rotations import matrix_to_quat, quat_to_matrix
 from shared.sequence import SequenceGuard
 from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
+from shared.wrist_only import is_wrist_only
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +99,11 @@ class RetargetConfig:
             (:class:`.orientation.ForearmOrientationMap`; needs ``elbow_placement="swivel"``, else it
             acts as "posture"). ``mimic retarget --elbow-placement mapped --orientation-reference rest``
             reproduces the paper.
+        arm_length: operator arm length, shoulder to wrist [m], for sources without arm bones
+            (wrist-only: VR controllers); they calibrate with :func:`.calibration.from_wrists`.
+        upper_arms: publish ``TaskTargets.upper_arms`` (seed 004's operator upper-arm orientation
+            ``R_m`` in the robot frame) for every arm whose shoulder, elbow and wrist are valid
+            (needs ``elbow_placement="swivel"``).
     """
 
     mode: str = MODES[0]
@@ -108,6 +122,8 @@ class RetargetConfig:
     one_arm_after: int = 30
     elbow_placement: str = ELBOW_PLACEMENTS[0]
     orientation_reference: str = ORIENTATION_REFERENCES[0]
+    arm_length: float = DEFAULT_ARM_LENGTH
+    upper_arms: bool = True
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -177,6 +193,11 @@ class Retargeter:
                 prof, self.config.reach_samples, self.config.seed, self.config.with_waist, robot=self.robot
             )
             self.reach = {s: ReachMap.cached(cloud, s, self.arms[s].centre) for s in SIDES}
+        #: side -> the operator's upper arm as the robot's upper-arm link orientation (seed 004 eq. 6)
+        self.upper_arm_maps: dict[str, UpperArmSolver] = {}
+        if self.config.upper_arms and self.arms:
+            for side in self.arms:
+                self.upper_arm_maps[side] = UpperArmSolver(self.robot, side, upper_arm_link(prof, side))
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -199,6 +220,8 @@ class Retargeter:
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
         self._wfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        for ua in getattr(self, "upper_arm_maps", {}).values():
+            ua.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -285,7 +308,10 @@ class Retargeter:
         self._guard.accept(hdr, frame.source)
         if self._recalibrate:
             try:
-                cal = anthropometric(frame, self.bone_of)
+                if is_wrist_only(frame):
+                    cal = from_wrists(frame, self.bone_of, self.config.arm_length)
+                else:
+                    cal = anthropometric(frame, self.bone_of)
                 self._calib_tries += 1
                 if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
                     raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
@@ -306,7 +332,13 @@ class Retargeter:
         self._placed.clear()
         for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
             targets[t] = self._target(t, frame, dt, targets)
-        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
+        upper_arms = {}
+        for side, ua_map in self.upper_arm_maps.items():
+            wrist = targets[f"{side}_wrist"]
+            placed = self._place_elbow(side, frame, wrist.p) if wrist.valid else None
+            if placed is not None:
+                upper_arms[side] = matrix_to_quat(ua_map(placed[0], wrist.p))
+        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode, upper_arms=upper_arms)
 
     def _posture_maps(self, frame: HumanFrame) -> None:
         """Eq. (4) offsets against the robot's calibration posture (``orientation_reference="posture"``).
