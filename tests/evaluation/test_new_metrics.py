@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from services.evaluation.cli import add_arguments, evaluate
+from services.evaluation.cli import _settings, add_arguments, evaluate
 from services.evaluation.collisions import SelfCollision
 from services.evaluation.metrics import _stats, jerk_rms, stuck_seconds, summarise, trace_metrics
 from services.evaluation.reachability import IK_TOL, ArmIk, check_targets
@@ -135,7 +135,9 @@ def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
     args = _args(["x.bvh", "--json", str(tmp_path / "o.json")])
     cfg = RetargetConfig()
     assert args.velocity_tau == cfg.velocity_tau and args.mapping == cfg.mode
-    assert args.elbow_placement == cfg.elbow_placement and args.orientation_reference == cfg.orientation_reference
+    retarget = _settings(args)[3]  # what the retargeter is built with
+    assert retarget["elbow_placement"] == cfg.elbow_placement
+    assert retarget["orientation_reference"] == cfg.orientation_reference and retarget["mode"] == cfg.mode
 
 
 def _renamed_rig(src, dst) -> None:
