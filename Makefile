@@ -4,6 +4,8 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# Real mocap clips, read at run time from beside the repo (shared/paths.py reads the same setting).
+MIMIC_MOCAP_DIR ?= ../shared/data/mocap
 
 .PHONY: setup demo test lint format bench eval clean
 
@@ -35,7 +37,7 @@ bench: setup
 	$(BIN)/mimic bench pipeline --json runs/bench_pipeline.json
 
 eval: setup
-	$(BIN)/mimic eval ../shared/data/mocap/bvh/*.bvh --json runs/eval.json --plots runs/eval
+	$(BIN)/mimic eval $(MIMIC_MOCAP_DIR)/bvh/*.bvh --json runs/eval.json --plots runs/eval
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache

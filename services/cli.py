@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
 
 from shared.bus import setup_logging
@@ -37,13 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def _load(name: str):
-    module, _ = COMMANDS[name]
-    try:
-        return importlib.import_module(module)
-    except ModuleNotFoundError as exc:
-        if exc.name and module.startswith(exc.name):
-            return None
-        raise
+    return importlib.import_module(COMMANDS[name][0])
 
 
 def build_parser(selected: str | None) -> argparse.ArgumentParser:
@@ -53,9 +46,7 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
     for name, (_, help_text) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_text, description=help_text)
         if name == selected:
-            mod = _load(name)
-            if mod is not None:
-                mod.add_arguments(sp)
+            _load(name).add_arguments(sp)
     return parser
 
 
@@ -68,13 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     setup_logging(args.log_level, prefix=f"[{args.command}] ")
-    mod = _load(args.command)
-    if mod is None:
-        logging.getLogger("mimic").error(
-            "'mimic %s' is not built yet (module %s missing)", args.command, COMMANDS[args.command][0]
-        )
-        return 3
-    return int(mod.main(args) or 0)
+    return int(_load(args.command).main(args) or 0)
 
 
 if __name__ == "__main__":

@@ -236,7 +236,6 @@ class LatestSlot:
         self._status = status
         self._stream = stream
         self._decode = decode
-        self._last: Any = None
 
     def put(self, msg: Any) -> None:
         with self._cond:
@@ -256,7 +255,6 @@ class LatestSlot:
                 return None
             raw = self._items.popleft()
         if self._decode is None:
-            self._last = raw
             return raw
         try:
             msg = self._decode(raw)
@@ -268,12 +266,7 @@ class LatestSlot:
             if self._status is not None:
                 self._status.reject("decoder", f"{self._stream}: {type(exc).__name__}: {exc}")
             return None
-        self._last = msg
         return msg
-
-    def peek(self) -> Any:
-        """Newest message taken so far (None before the first)."""
-        return self._last
 
 
 # --------------------------------------------------------------------------- runner

@@ -28,6 +28,8 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 
+from shared.targets import SIDES, TARGET_NAMES
+
 SCHEMA_VERSION = 1
 
 #: Largest payload any decoder accepts [bytes]; bigger ones are rejected
@@ -45,10 +47,8 @@ HUMAN_BONES: tuple[str, ...] = (
     "chest",
     "neck",
     "head",
-    *(f"{side}_{bone}" for side in ("left", "right") for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
+    *(f"{side}_{bone}" for side in SIDES for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
 )
-#: Retargeting targets, in the robot base frame.
-TARGET_NAMES: tuple[str, ...] = ("left_wrist", "right_wrist", "left_elbow", "right_elbow")
 #: Command status values a solver may report.
 COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init")
 

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
 from shared.bus import free_port
+from shared.paths import REPO_ROOT
+from shared.paths import mocap_dir as _mocap_dir
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = REPO_ROOT
 #: Real recorded motion lives beside the repo (never copied into it).
-MOCAP_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap"))
+MOCAP_DIR = _mocap_dir()
 
 
 def _require(path: Path) -> Path:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.evaluation.runner import ELBOWS, WRISTS, Trace
+from services.evaluation.runner import Trace
 from shared.robot.pinocchio_model import RobotModel
+from shared.targets import ELBOWS, WRISTS
 
 #: Level-1 residual under which the strict hierarchy counts a wrist target as met.
 REACHABLE_TOL = 1e-3

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from services.evaluation.runner import Trace
+from shared.targets import SIDES, elbow_of, wrist_of
 
 AXES = "xyz"
 
@@ -116,17 +117,13 @@ def write_report(result: dict, traces: dict[tuple[str, str], Trace], out: Path) 
         per = {a: tr for (c, a), tr in traces.items() if c == clip}
         if not per:
             continue
-        side = (
-            "left"
-            if np.ptp(next(iter(per.values())).ref_p["left_wrist"], axis=0).sum()
-            > np.ptp(next(iter(per.values())).ref_p["right_wrist"], axis=0).sum()
-            else "right"
-        )
+        ref_p = next(iter(per.values())).ref_p
+        side = max(SIDES, key=lambda s: np.ptp(ref_p[wrist_of(s)], axis=0).sum())  # the arm that moves most
         names = [f"{clip}_{kind}.png" for kind in ("wrist_xyz", "elbow_xyz", "wrist_rpy", "elbow_3d")]
-        _xyz_plot(out / names[0], per, f"{side}_wrist", f"{clip}: {side} wrist x/y/z")
-        _xyz_plot(out / names[1], per, f"{side}_elbow", f"{clip}: {side} elbow x/y/z")
-        _rpy_plot(out / names[2], per, f"{side}_wrist", f"{clip}: {side} wrist r/p/y", True)
-        _elbow_3d(out / names[3], per, f"{side}_elbow", f"{clip}: {side} elbow 3D")
+        _xyz_plot(out / names[0], per, wrist_of(side), f"{clip}: {side} wrist x/y/z")
+        _xyz_plot(out / names[1], per, elbow_of(side), f"{clip}: {side} elbow x/y/z")
+        _rpy_plot(out / names[2], per, wrist_of(side), f"{clip}: {side} wrist r/p/y", True)
+        _elbow_3d(out / names[3], per, elbow_of(side), f"{clip}: {side} elbow 3D")
         figs[clip] = names
     _solve_bar(out / "solve_time.png", result["summary"], PAPER_MS)
 

@@ -30,13 +30,12 @@ from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
 from services.solver.wqp import WeightedQp
-from shared.messages import TARGET_NAMES, TaskTargets
+from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import quat_to_matrix
+from shared.targets import TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.eval")
-WRISTS = ("left_wrist", "right_wrist")
-ELBOWS = ("left_elbow", "right_elbow")
 REFERENCE_ALGO = "hqp-nullspace"
 #: Retarget settings of the evaluation beyond the service defaults (swivel elbows, forearm-relative
 #: orientations): raw finite-difference velocities, since the 50 ms low-pass lags the extrapolated

@@ -6,7 +6,6 @@ Run: ``python -m services.ingest.bench [--mocap-dir DIR] [--repeat N]``.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import tempfile
 import time
@@ -14,10 +13,10 @@ from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
 from services.ingest.demo_motion import generate_demo_clips
+from shared.paths import mocap_dir
 from shared.report import emit_json
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_MOCAP = Path(os.environ.get("MIMIC_MOCAP_DIR", REPO.parent / "shared" / "data" / "mocap"))
+DEFAULT_MOCAP = mocap_dir()
 
 
 def _speed(path: Path, repeat: int) -> tuple[int, float]:

@@ -19,7 +19,6 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -489,13 +488,3 @@ def write_bvh(path: str | Path, data: BvhData) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(out) + "\n")
     return path
-
-
-def bvh_info(data: BvhData) -> dict[str, Any]:
-    """Short description of a parsed file (joints, channels, frames, rate)."""
-    return {
-        "joints": len(data.joints),
-        "channels": data.n_channels,
-        "frames": len(data.motion),
-        "fps": _fps(data.frame_time),
-    }

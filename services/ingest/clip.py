@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from services.ingest.errors import ClipError
-from services.ingest.rotations import matrix_to_quat, quat_to_matrix
+from services.ingest.rotations import matrices_to_quats, quats_to_matrices
 from shared.messages import HUMAN_BONES, Bone, Header, HumanFrame, Pose
 
 __all__ = ["Clip", "ClipError", "clip_from_world", "load_clip"]
@@ -138,7 +138,7 @@ class Clip:
 
     def world_positions(self, bone: str) -> np.ndarray:
         """(T, 3) bone position back in the Z-up world [m]."""
-        R = quat_to_matrix(self.root_q)
+        R = quats_to_matrices(self.root_q)
         return np.einsum("tij,tj->ti", R, self.positions[bone]) + self.root_p
 
 
@@ -181,13 +181,13 @@ def clip_from_world(
             good = np.all(np.isfinite(Rl), axis=(1, 2))
             q = np.tile(_IDENTITY_Q, (T, 1))
             if good.any():
-                q[good] = matrix_to_quat(Rl[good])
+                q[good] = matrices_to_quats(Rl[good])
             quats[b] = q
         else:
             quats[b] = np.tile(_IDENTITY_Q, (T, 1))
     root_q = np.tile(_IDENTITY_Q, (T, 1))
     if root_ok.any():
-        root_q[root_ok] = matrix_to_quat(root_R[root_ok])
+        root_q[root_ok] = matrices_to_quats(root_R[root_ok])
     root_q[~root_ok] = np.nan
     return Clip(
         name=name,

@@ -42,7 +42,7 @@ def matrix_to_euler(order: str, R: np.ndarray) -> np.ndarray:
         return Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
 
 
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+def matrices_to_quats(R: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions wxyz (w >= 0)."""
     shape = R.shape[:-2]
     q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat(scalar_first=True)
@@ -50,7 +50,7 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     return q.reshape(*shape, 4)
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+def quats_to_matrices(q: np.ndarray) -> np.ndarray:
     """(..., 4) quaternions wxyz (normalised here) -> (..., 3, 3) matrices."""
     shape = q.shape[:-1]
     return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*shape, 3, 3)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.ingest.rotations import matrix_to_quat, quat_to_matrix
+from services.ingest.rotations import matrices_to_quats, quats_to_matrices
 from shared.messages import Bone, Header, HumanFrame, Pose
 
 HEADER = struct.Struct(">6sIBBIBBBBHH")
@@ -206,7 +206,7 @@ class MvnDecoder:
         p_root = by_name["Pelvis"][0] * scale
         q_root = by_name["Pelvis"][1]
         n_root = np.linalg.norm(q_root)
-        R_root = quat_to_matrix(q_root) if np.all(np.isfinite(q_root)) and n_root > 1e-6 else np.full((3, 3), np.nan)
+        R_root = quats_to_matrices(q_root) if np.all(np.isfinite(q_root)) and n_root > 1e-6 else np.full((3, 3), np.nan)
         bones = {}
         for bone, seg in BONE_SEGMENTS.items():
             if seg not in by_name:
@@ -218,7 +218,7 @@ class MvnDecoder:
             p_local = R_root.T @ (p * scale - p_root)
             nq = np.linalg.norm(q)
             if np.all(np.isfinite(q)) and nq > 1e-6 and np.all(np.isfinite(R_root)):
-                q_local = matrix_to_quat(R_root.T @ quat_to_matrix(q)) * nq  # keep |q| for the sanitizer
+                q_local = matrices_to_quats(R_root.T @ quats_to_matrices(q)) * nq  # keep |q| for the sanitizer
             else:
                 q_local = np.full(4, np.nan)
             bones[bone] = Bone(p_local, q_local, True)

@@ -24,6 +24,7 @@ from services.launcher.stack import ROUTER_SERVICE, forget_state, load_stack, lo
 from services.launcher.supervisor import Supervisor
 from shared.bus import DEFAULT_ROUTER, wait_for_endpoint
 from shared.keys import Keys
+from shared.paths import REPO_ROOT
 
 log = logging.getLogger("mimic.up")
 STOP_LAST = ("logger", ROUTER_SERVICE)
@@ -84,7 +85,7 @@ def _demo_clips(repo: Path, run_dir: Path, sup: Supervisor, env: dict[str, str])
 
 
 def main(args: argparse.Namespace) -> int:
-    repo = Path(__file__).resolve().parents[2]
+    repo = REPO_ROOT
     session = args.session or ("demo" if args.demo else os.environ.get("MIMIC_SESSION", "default"))
     env = dict(os.environ, MIMIC_SESSION=session)
     compose = Path(args.compose) if args.compose else None

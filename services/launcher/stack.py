@@ -16,7 +16,8 @@ from pathlib import Path
 
 import yaml
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+from shared.paths import REPO_ROOT
+
 COMPOSE_FILE = REPO_ROOT / "docker-compose.yml"
 ROUTER_SERVICE = "zenoh"
 #: Environment variables that carry network endpoints: rewritten for loopback.

@@ -73,10 +73,9 @@ def synthetic_stream(frames: int, source_rate: float, solvers: int, states_per_f
 def main(args: argparse.Namespace) -> int:
     import rerun as rr
 
+    from services.logger.rerun_logger import RerunLogger
+    from services.logger.robot_visual import RobotVisual
     from shared.messages import peek_type
-
-    from .rerun_logger import RerunLogger
-    from .robot_visual import RobotVisual
 
     payloads = synthetic_stream(args.frames, args.source_rate, args.solvers, args.states_per_frame)
     with tempfile.TemporaryDirectory() as tmp:

@@ -13,6 +13,7 @@ import logging
 from pathlib import Path
 
 from shared.bus import add_bus_args
+from shared.robot.profile import DEFAULT_PROFILE
 
 log = logging.getLogger("mimic.log")
 
@@ -40,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--connect-viewer", default=None, metavar="URL", help="stream to a running viewer (rerun+http://...)"
     )
     g = p.add_argument_group("content")
-    g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
+    g.add_argument("--robot", default=DEFAULT_PROFILE, help="robot profile name or TOML path")
     g.add_argument("--no-meshes", action="store_true", help="do not draw the robot meshes")
     g.add_argument("--robot-rate", type=float, default=30.0, help="robot mesh placements per second [Hz]")
     g.add_argument("--skeleton-rate", type=float, default=60.0, help="human skeletons per second [Hz] (0: all)")
@@ -54,7 +55,7 @@ def open_recording(args: argparse.Namespace, rrd: Path):
     """Recording stream with its sinks (file, and optionally viewer/server) and the blueprint."""
     import rerun as rr
 
-    from .rerun_logger import blueprint
+    from services.logger.rerun_logger import blueprint
 
     rec = rr.RecordingStream("mimic")
     rec.send_recording_name(getattr(args, "session", "mimic"))
@@ -77,12 +78,11 @@ def open_recording(args: argparse.Namespace, rrd: Path):
 
 
 def main(args: argparse.Namespace) -> int:
+    from services.logger.node import LoggerNode
+    from services.logger.rerun_logger import RerunLogger
+    from services.logger.robot_visual import RobotVisual
     from shared.bus import ServiceRunner
     from shared.robot.profile import ProfileError
-
-    from .node import LoggerNode
-    from .rerun_logger import RerunLogger
-    from .robot_visual import RobotVisual
 
     rrd = args.rrd or Path("runs") / f"{args.session}.rrd"
     try:

@@ -16,9 +16,8 @@ from collections import deque
 import numpy as np
 import zenoh
 
+from services.logger.rerun_logger import RerunLogger
 from shared.bus import ServiceRunner
-
-from .rerun_logger import RerunLogger
 
 
 class LoggerNode:

@@ -18,7 +18,8 @@ frame, x forward, y left, z up):
   ``metrics/latency_ms/<stream>`` (receive time - ``hdr.t0``),
   ``metrics/drops/<service>`` (from ServiceStatus), ``metrics/logger/skipped``.
 
-This module and :mod:`services.logger.cli` are the only code importing rerun.
+Rerun is imported only inside :mod:`services.logger` (this module, ``cli``, ``bench_cli`` and
+``rrd_summary``); no other service depends on it.
 """
 
 from __future__ import annotations
@@ -33,10 +34,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from services.logger.robot_visual import RobotVisual
 from shared.messages import (
     MAX_ITEMS,
     MESSAGE_TYPES,
-    TARGET_NAMES,
     HumanFrame,
     JointCommand,
     MessageError,
@@ -46,8 +47,7 @@ from shared.messages import (
     peek_type,
 )
 from shared.rotations import quat_xyzw
-
-from .robot_visual import RobotVisual
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.log")
 
@@ -57,8 +57,6 @@ SKELETON_CHAINS: tuple[tuple[str, ...], ...] = (
     ("chest", "left_clavicle", "left_shoulder", "left_elbow", "left_wrist", "left_hand"),
     ("chest", "right_clavicle", "right_shoulder", "right_elbow", "right_wrist", "right_hand"),
 )
-WRISTS = ("left_wrist", "right_wrist")
-ELBOWS = ("left_elbow", "right_elbow")
 COMMAND_RGBA = (0.35, 0.55, 0.95, 0.3)  # translucent blue: what the solver asked
 OPERATOR_RGB = (240, 160, 40)
 

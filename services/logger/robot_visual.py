@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class RobotVisual:
     """
 
     def __init__(self, profile: RobotProfile | str | None = None):
-        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
         self.profile = prof
         self.model = pin.buildModelFromUrdf(str(prof.urdf_path))
         self.geom = pin.buildGeomFromUrdf(

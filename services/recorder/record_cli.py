@@ -31,11 +31,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
 
 
-def _zenoh_time_ns(sample: zenoh.Sample) -> int | None:
-    ts = sample.timestamp
-    return None if ts is None else int(ts.get_time().timestamp() * 1e9)
-
-
 def main(args: argparse.Namespace) -> int:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     out = args.out or f"runs/{args.session}-{stamp}.mcap"

@@ -10,20 +10,19 @@ box, frames where the bounded clamp acted, and ``Retargeter.step`` time percenti
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from shared.messages import TARGET_NAMES
+from services.retarget.mapping import MODES
+from services.retarget.retargeter import RetargetConfig, Retargeter
+from shared.paths import mocap_dir
 from shared.report import emit_json
+from shared.targets import TARGET_NAMES
 
-from .mapping import MODES
-from .retargeter import RetargetConfig, Retargeter
-
-DEFAULT_DIR = Path(os.environ.get("MIMIC_MOCAP_DIR", Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"))
+DEFAULT_DIR = mocap_dir()
 
 
 def evaluate(paths: list[Path], modes: tuple[str, ...]) -> dict:

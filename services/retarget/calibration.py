@@ -30,10 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from shared.messages import TARGET_NAMES, HumanFrame
+from shared.messages import HumanFrame
+from shared.targets import SIDES, TARGET_NAMES, elbow_of, wrist_of
 
 #: Bones that must be valid for an anthropometric calibration of each arm.
-ARM_BONES = {side: (f"{side}_shoulder", f"{side}_elbow", f"{side}_wrist") for side in ("left", "right")}
+ARM_BONES = {side: (f"{side}_shoulder", f"{side}_elbow", f"{side}_wrist") for side in SIDES}
 #: Smallest distance between the rest value and each extent [m].
 MIN_SPAN = 0.02
 _MIRROR = np.array([1.0, -1.0, 1.0])
@@ -241,8 +242,7 @@ def anthropometric(
     for side, (sh, el, wr) in ARM_BONES.items():
         try:
             p_sh, p_el, p_wr = _bone_p(frame, sh), _bone_p(frame, el), _bone_p(frame, wr)
-            targets = {f"{side}_wrist": _bone_p(frame, bone_of[f"{side}_wrist"])}
-            targets[f"{side}_elbow"] = _bone_p(frame, bone_of[f"{side}_elbow"])
+            targets = {t: _bone_p(frame, bone_of[t]) for t in (wrist_of(side), elbow_of(side))}
             quats = {t: _bone_q(frame, bone_of[t]) for t in targets}
         except CalibrationError as exc:
             failures[side] = str(exc)
@@ -252,7 +252,7 @@ def anthropometric(
         if upper_arm < 0.05 or forearm < 0.05:
             raise CalibrationError(f"{side} arm segments {upper_arm:.3f} m / {forearm:.3f} m too short (units?)")
         lengths[side] = upper_arm + forearm
-        for target, radius in ((f"{side}_wrist", upper_arm + forearm), (f"{side}_elbow", upper_arm)):
+        for target, radius in ((wrist_of(side), upper_arm + forearm), (elbow_of(side), upper_arm)):
             rest[target] = targets[target]
             rest_q[target] = quats[target]
             lo = p_sh - radius * reach_arr[:, 0]
@@ -265,9 +265,8 @@ def anthropometric(
         # One-armed capture (e.g. a right-arm marker set): mirror the measured arm across the
         # sagittal plane so the calibration is complete; the missing arm's targets stay invalid
         # until its bones arrive, and then map with a plausible mirrored calibration.
-        other = "right" if side == "left" else "left"
-        for joint in ("wrist", "elbow"):
-            src, dst = f"{other}_{joint}", f"{side}_{joint}"
+        (other,) = set(SIDES) - {side}
+        for src, dst in ((wrist_of(other), wrist_of(side)), (elbow_of(other), elbow_of(side))):
             rest[dst] = rest[src] * _MIRROR
             w, x, y, z = rest_q[src]
             rest_q[dst] = np.array([w, -x, y, -z])  # S R S with S = diag(1, -1, 1)

@@ -10,10 +10,10 @@ import argparse
 import logging
 from pathlib import Path
 
+from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
+from services.retarget.workspace import DEFAULT_SAMPLES, Shrink
 from shared.bus import add_bus_args
-
-from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
-from .workspace import DEFAULT_SAMPLES, Shrink
+from shared.robot.profile import DEFAULT_PROFILE
 
 log = logging.getLogger("mimic.retarget")
 
@@ -29,7 +29,7 @@ def add_retarget_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``retarget`` and ``retarget-plot``."""
     g = p.add_argument_group("retargeting")
     g.add_argument("--mapping", choices=MODES, default="bounded", help="position mapping mode (default bounded)")
-    g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
+    g.add_argument("--robot", default=DEFAULT_PROFILE, help="robot profile name or TOML path")
     g.add_argument("--calibration", type=Path, default=None, help="operator calibration file (JSON or TOML)")
     g.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help="Monte Carlo workspace samples")
     g.add_argument("--seed", type=int, default=0, help="workspace sampling seed")
@@ -62,7 +62,7 @@ def add_retarget_options(p: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace):
     """RetargetConfig from parsed options."""
-    from .retargeter import RetargetConfig
+    from services.retarget.retargeter import RetargetConfig
 
     return RetargetConfig(
         mode=args.mapping,
@@ -107,7 +107,7 @@ def initial_calibration(args: argparse.Namespace):
     Raises CalibrationError for a bad ``--calibration``; a bad state file is logged and ignored
     so it cannot keep the service down.
     """
-    from .calibration import Calibration, CalibrationError
+    from services.retarget.calibration import Calibration, CalibrationError
 
     if args.calibration:
         return Calibration.load(args.calibration)
@@ -124,9 +124,9 @@ def initial_calibration(args: argparse.Namespace):
 
 
 def main(args: argparse.Namespace) -> int:
-    from .calibration import CalibrationError
-    from .node import run
-    from .retargeter import Retargeter
+    from services.retarget.calibration import CalibrationError
+    from services.retarget.node import run
+    from services.retarget.retargeter import Retargeter
 
     try:
         config = config_from_args(args)

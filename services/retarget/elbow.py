@@ -24,6 +24,7 @@ import numpy as np
 
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import norm3
+from shared.targets import elbow_of, wrist_of
 
 #: Swivel direction used when the operator's arm is straight [m]: blended in with this weight,
 #: so the direction stays continuous when the elbow crosses the shoulder-wrist line.
@@ -53,13 +54,16 @@ class ArmGeometry:
 
     @classmethod
     def measure(cls, robot: RobotModel, side: str, samples: int = 400, seed: int = 0) -> ArmGeometry:
-        """Measure one arm ('left' or 'right') on the robot model (arms at random, waist at rest)."""
+        """Measure one arm (a side of ``SIDES``) on the robot model (arms at random, waist at rest).
+
+        The joint roles (waist, this arm's wrist and elbow joints) come from the robot profile.
+        """
         rng = np.random.default_rng(seed)
-        elbow, wrist = f"{side}_elbow", f"{side}_wrist"
+        elbow, wrist = elbow_of(side), wrist_of(side)
+        roles = robot.profile.arms[side]
         qs = robot.random_configurations(samples, rng)
-        if robot.nq > 14:  # keep any waist joints at rest: the targets are for the waist at rest
-            waist = [i for i, n in enumerate(robot.joint_names) if "waist" in n]
-            qs[:, waist] = robot.q_rest[waist]
+        waist = robot.indices(robot.profile.waist)  # empty on an arms-only model
+        qs[:, waist] = robot.q_rest[waist]  # the targets are for the waist at rest
         E = np.array([robot.frame_poses(q, names=(elbow,))[elbow][0] for q in qs])
         # Sphere fit |E - c|^2 = r^2  <=>  2 E.c + (r^2 - |c|^2) = |E|^2 (linear least squares).
         A = np.c_[2.0 * E, np.ones(len(E))]
@@ -67,9 +71,7 @@ class ArmGeometry:
         c = sol[:3]
         upper = float(np.sqrt(sol[3] + c @ c))
         q0 = robot.q_rest.copy()
-        for i, n in enumerate(robot.joint_names):
-            if f"{side}_wrist" in n:
-                q0[i] = 0.0
+        q0[robot.indices(roles.wrist)] = 0.0
         poses = robot.frame_poses(q0, names=(elbow, wrist))
         fore = float(np.linalg.norm(poses[wrist][0] - poses[elbow][0]))
         rest = robot.frame_poses(robot.q_rest, names=(elbow, wrist))
@@ -78,7 +80,7 @@ class ArmGeometry:
             n0 = np.array([-1.0, 0.0, 0.0])
         # The elbow joint's limits bound how far the wrist can be from the shoulder (G1: it folds
         # to about 140 deg only, so a wrist target at the shoulder is out of reach).
-        k = robot.joint_names.index(f"{side}_elbow_joint")
+        k = robot.joint_names.index(roles.elbow)
         dist = []
         for e in np.linspace(robot.lower[k], robot.upper[k], 201):
             q0[k] = e

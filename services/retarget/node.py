@@ -24,11 +24,10 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
+from services.retarget.calibration import Calibration, CalibrationError
+from services.retarget.retargeter import Retargeter
 from shared.bus import ServiceRunner
 from shared.messages import HumanFrame
-
-from .calibration import Calibration, CalibrationError
-from .retargeter import Retargeter
 
 #: Frames kept waiting for the worker before the oldest is skipped.
 FRAME_QUEUE = 32

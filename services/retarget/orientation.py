@@ -15,6 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from shared.rotations import cross3, norm3
+from shared.targets import SIDES, elbow_of, wrist_of
 
 
 def angular_velocity(R_prev: np.ndarray, R: np.ndarray, dt: float) -> np.ndarray:
@@ -52,15 +53,13 @@ def calibration_posture(
     """
     import pinocchio as pin
 
-    names = list(robot.joint_names)
-    arm = [i for i, n in enumerate(names) if n.startswith(f"{side}_shoulder") or n == f"{side}_elbow_joint"]
+    roles = robot.profile.arms[side]
+    arm = robot.indices((*roles.shoulder, roles.elbow))
     q = robot.q_rest.copy()
-    for i, n in enumerate(names):
-        if n.startswith(f"{side}_wrist"):
-            q[i] = 0.0
-    goals = [(robot.frame_id(f"{side}_wrist"), np.asarray(wrist, dtype=float))]
+    q[robot.indices(roles.wrist)] = 0.0
+    goals = [(robot.frame_id(wrist_of(side)), np.asarray(wrist, dtype=float))]
     if elbow is not None:
-        goals.append((robot.frame_id(f"{side}_elbow"), np.asarray(elbow, dtype=float)))
+        goals.append((robot.frame_id(elbow_of(side)), np.asarray(elbow, dtype=float)))
     for _ in range(iters):
         data = robot.forward(q)
         err = np.concatenate([p - data.oMf[f].translation for f, p in goals])
@@ -85,10 +84,10 @@ def calibration_orientations(
         elbows: side -> (3,) elbow position [m] reachable with that wrist (None: swivel near rest).
     """
     out = {}
-    for side in ("left", "right"):
+    for side in SIDES:
         el = None if elbows is None else elbows.get(side)
-        q = calibration_posture(robot, side, rest_targets[f"{side}_wrist"], el)
-        poses = robot.frame_poses(q, names=(f"{side}_wrist", f"{side}_elbow"))
+        q = calibration_posture(robot, side, rest_targets[wrist_of(side)], el)
+        poses = robot.frame_poses(q, names=(wrist_of(side), elbow_of(side)))
         for t, (_p, R) in poses.items():
             out[t] = R.copy()
     return out

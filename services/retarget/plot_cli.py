@@ -17,9 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from services.retarget.cli import add_retarget_options, config_from_args
 from shared.report import emit_json
-
-from .cli import add_retarget_options, config_from_args
 
 log = logging.getLogger("mimic.retarget")
 
@@ -46,11 +45,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from services.ingest.clip import ClipError, load_clip
-    from shared.messages import TARGET_NAMES
-
-    from .calibration import Calibration, CalibrationError, anthropometric, from_recording
-    from .plots import plot_trajectories, plot_workspaces
-    from .retargeter import Retargeter
+    from services.retarget.calibration import Calibration, CalibrationError, anthropometric, from_recording
+    from services.retarget.plots import plot_trajectories, plot_workspaces
+    from services.retarget.retargeter import Retargeter
+    from shared.targets import SIDES, TARGET_NAMES
 
     try:
         clip = load_clip(args.clip)
@@ -87,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
                 U[t][i] = out.targets[t].p
 
     ws = r.workspace
-    shoulders = {s: frames[0].bones[f"{s}_shoulder"].p for s in ("left", "right") if f"{s}_shoulder" in frames[0].bones}
+    shoulders = {s: frames[0].bones[f"{s}_shoulder"].p for s in SIDES if f"{s}_shoulder" in frames[0].bones}
     out_dir = args.out
     files = [
         plot_workspaces(ws, cal, shoulders, out_dir / "fig6_workspace.png", operator_paths=H),
@@ -96,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
                 clip.times, H, U, side, out_dir / f"fig7_{side}.png",
                 title=f"Fig. 7: {clip.name}, {side} arm, {config.mode} mapping: operator (dashed) vs robot (solid)",
             )
-            for side in ("left", "right")
+            for side in SIDES
         ),
     ]  # fmt: skip
     report = {

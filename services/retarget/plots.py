@@ -13,8 +13,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .calibration import Calibration
-from .workspace import Workspace
+from services.retarget.calibration import Calibration
+from services.retarget.workspace import Workspace
+from shared.targets import SIDES, elbow_of, wrist_of
 
 #: Paper colours: operator left/right (orange-red, cyan-green), robot left/right (blue, yellow).
 OPERATOR_COLOURS = {"left": "#e8602c", "right": "#2ab7a9"}
@@ -62,17 +63,17 @@ def plot_workspaces(
     rng = np.random.default_rng(seed)
     fig = plt.figure(figsize=(16, 5.6))
     ax = fig.add_subplot(1, 3, 1, projection="3d")
-    for side in ("left", "right"):
-        p = _robot_cloud(ws, f"{side}_wrist", rng)
+    for side in SIDES:
+        p = _robot_cloud(ws, wrist_of(side), rng)
         ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=1, alpha=0.35, c=ROBOT_COLOURS[side], label=f"robot {side} wrist")
     ax.set_title(f"(a) robot wrist workspace\n{ws.meta.get('samples', '?')} samples, shrink {ws.shrink.to_dict()}")
-    for k, joint in enumerate(("wrist", "elbow")):
+    for k, (joint, target_of) in enumerate((("wrist", wrist_of), ("elbow", elbow_of))):
         ax = fig.add_subplot(1, 3, 2 + k, projection="3d")
-        for side in ("left", "right"):
-            t = f"{side}_{joint}"
+        for side in SIDES:
+            t = target_of(side)
             if side in shoulders:
                 # reach of the wrist = whole arm; of the elbow = upper arm (shoulder to elbow at rest)
-                upper_arm = float(np.linalg.norm(cal.rest[f"{side}_elbow"] - shoulders[side]))
+                upper_arm = float(np.linalg.norm(cal.rest[elbow_of(side)] - shoulders[side]))
                 radius = cal.arm_length.get(side, 2 * upper_arm) if joint == "wrist" else upper_arm
                 h = operator_reach_points(shoulders[side], radius, cal.lower[t], cal.upper[t], 4000, rng)
                 ax.scatter(
@@ -108,8 +109,7 @@ def plot_trajectories(
         side: "left" or "right". out: PNG path.
     """
     fig, axes = plt.subplots(2, 3, figsize=(14, 6.5), sharex=True)
-    for row, joint in enumerate(("wrist", "elbow")):
-        t = f"{side}_{joint}"
+    for row, (joint, t) in enumerate((("wrist", wrist_of(side)), ("elbow", elbow_of(side)))):
         for ax_i, axis in enumerate("xyz"):
             ax = axes[row, ax_i]
             ax.plot(times, H[t][:, ax_i], "--", c=OPERATOR_COLOURS[side], label="operator")

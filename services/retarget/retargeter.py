@@ -25,23 +25,23 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from shared.messages import TARGET_NAMES, Header, HumanFrame, Target, TaskTargets
-from shared.robot.pinocchio_model import RobotModel, build_robot_model
-from shared.robot.profile import RobotProfile, load_profile
-from shared.rotations import matrix_to_quat, quat_to_matrix
-
-from .calibration import Calibration, CalibrationError, anthropometric
-from .elbow import ArmGeometry, human_swivel
-from .mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
-from .orientation import (
+from services.retarget.calibration import Calibration, CalibrationError, anthropometric
+from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
+from services.retarget.orientation import (
     ForearmOrientationMap,
     OrientationMap,
     angular_velocity,
     arm_alignment,
     calibration_orientations,
 )
-from .velocity import LowPassVelocity
-from .workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+from services.retarget.velocity import LowPassVelocity
+from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+from shared.messages import Header, HumanFrame, Target, TaskTargets
+from shared.robot.pinocchio_model import RobotModel, build_robot_model
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ class RetargetConfig:
     """
 
     mode: str = "bounded"
-    robot: str = "g1_29dof"
+    robot: str = DEFAULT_PROFILE
     samples: int = DEFAULT_SAMPLES
     seed: int = 0
     with_waist: bool = False
@@ -155,12 +155,8 @@ class Retargeter:
         self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
         #: side -> robot arm geometry for the swivel elbow placement
         self.arms = (
-            {s: ArmGeometry.measure(self.robot, s) for s in ("left", "right")}
-            if self.config.elbow_placement == "swivel"
-            else {}
+            {s: ArmGeometry.measure(self.robot, s) for s in SIDES} if self.config.elbow_placement == "swivel" else {}
         )
-        #: target -> arm side ("left" / "right")
-        self.side_of = {t: t.split("_")[0] for t in TARGET_NAMES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -313,14 +309,14 @@ class Retargeter:
             sh = frame.bones.get(f"{side}_shoulder")
             if sh is not None and sh.valid:
                 shoulder = np.asarray(sh.p, dtype=float)
-                swivel = human_swivel(shoulder, cal.rest[f"{side}_elbow"], cal.rest[f"{side}_wrist"])
-                elbows[side] = arm.place(rest[f"{side}_wrist"], swivel)
+                swivel = human_swivel(shoulder, cal.rest[elbow_of(side)], cal.rest[wrist_of(side)])
+                elbows[side] = arm.place(rest[wrist_of(side)], swivel)
         ref = calibration_orientations(self.robot, rest, elbows)
         for t in TARGET_NAMES:
-            side = self.side_of[t]
-            if self.config.orientation_reference == "forearm" and t.endswith("wrist") and side in elbows:
+            side = side_of(t)
+            if self.config.orientation_reference == "forearm" and t in WRISTS and side in elbows:
                 sh = np.asarray(frame.bones[f"{side}_shoulder"].p, dtype=float)
-                h_el = cal.rest[f"{side}_elbow"]
+                h_el = cal.rest[elbow_of(side)]
                 A = arm_alignment(
                     h_el - sh, cal.rest[t] - h_el, elbows[side] - self.arms[side].centre, rest[t] - elbows[side]
                 )
@@ -364,7 +360,7 @@ class Retargeter:
         return q
 
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
-        use_rot = t.endswith("wrist") or self.config.elbow_rotation
+        use_rot = t in WRISTS or self.config.elbow_rotation
         bone = frame.bones.get(self.bone_of[t])
         if bone is None or not bone.valid:
             self.counts[f"invalid_{t}"] += 1
@@ -376,10 +372,10 @@ class Retargeter:
                 pos_map.reanchor()
             p, R = self._held[t]
             return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
-        side = self.side_of[t]
+        side = side_of(t)
         p = None
-        if t.endswith("elbow"):
-            wrist = done.get(f"{side}_wrist")
+        if t in ELBOWS:
+            wrist = done.get(wrist_of(side))
             placed = self._place_elbow(side, frame, wrist.p) if wrist is not None and wrist.valid else None
             if placed is not None:
                 p = self._elbow_in_box(t, placed[0])
@@ -388,7 +384,7 @@ class Retargeter:
             if clamped.any():
                 self.counts[f"clamped_{t}"] += 1
             arm = self.arms.get(side)
-            if t.endswith("wrist") and arm is not None and self.config.mode != "incremental":
+            if t in WRISTS and arm is not None and self.config.mode != "incremental":
                 # Swivel elbows: keep the wrist within the arm's reach so the pair stays reachable.
                 q = arm.reachable(p)
                 if np.any(np.abs(q - p) > 1e-9):

@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from shared.messages import TARGET_NAMES
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
-from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +202,7 @@ def load_workspace(
     """Workspace of the profile's wrists and elbows, from the cache or computed (then cached).
 
     Args:
-        profile: robot profile, name or path (default G1).
+        profile: robot profile, name or path (default ``DEFAULT_PROFILE``).
         samples, seed: Monte Carlo parameters.
         with_waist: also sample the waist; by default only the arm joints move (waist at rest),
             because the solver's wrist/elbow boxes should not rely on bending the torso.
@@ -211,7 +211,7 @@ def load_workspace(
         robot: an already built model matching ``with_waist`` (saves ~0.5 s).
         progress: tqdm bar (None = only on a terminal).
     """
-    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
     joints = prof.controlled_joints(with_waist)
     key = _cache_key(prof, joints, samples, seed)
     path = cache_dir() / f"{key}.npz"

@@ -12,6 +12,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("LP_NUM_THREADS", "1")
 
 from shared.bus import add_bus_args
+from shared.robot.profile import DEFAULT_PROFILE
 
 log = logging.getLogger("mimic.sim")
 
@@ -19,7 +20,7 @@ log = logging.getLogger("mimic.sim")
 def add_sim_options(p: argparse.ArgumentParser) -> None:
     """Robot and servo options shared by ``sim`` and ``sim-track``."""
     g = p.add_argument_group("simulation")
-    g.add_argument("--robot", default="g1_29dof", help="robot profile name or TOML path")
+    g.add_argument("--robot", default=DEFAULT_PROFILE, help="robot profile name or TOML path")
     g.add_argument("--timestep", type=float, default=0.001, help="physics step [s] (default 1 kHz)")
     g.add_argument("--no-velocity-ff", action="store_true", help="servos brake against qdot instead of tracking qd")
     g.add_argument("--no-gravity-comp", action="store_true", help="motors do not cancel gravity")
@@ -32,7 +33,7 @@ def add_sim_options(p: argparse.ArgumentParser) -> None:
 
 def sim_config(args: argparse.Namespace, **extra):
     """SimConfig from parsed options."""
-    from .sim_core import SimConfig
+    from services.sim.sim_core import SimConfig
 
     return SimConfig(
         timestep=args.timestep,
@@ -65,11 +66,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from services.sim.node import run
+    from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
-
-    from .node import run
-    from .sim_core import SimCore
 
     try:
         Keys().command(args.follow)

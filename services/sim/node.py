@@ -20,12 +20,11 @@ from pathlib import Path
 
 import msgpack
 
+from services.sim.render import BackgroundFrameWriter, FrameWriter, open_renderer
+from services.sim.sim_core import SimCore
 from shared.bus import LatestSlot, ServiceRunner
 from shared.keys import Keys
 from shared.messages import JointCommand
-
-from .render import BackgroundFrameWriter, FrameWriter, open_renderer
-from .sim_core import SimCore
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05

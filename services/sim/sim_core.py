@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from shared.messages import TARGET_NAMES, Header, JointCommand, Pose, RobotState
+from shared.messages import Header, JointCommand, Pose, RobotState
 from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
-from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger("mimic.sim")
 
@@ -93,13 +94,13 @@ class SimCore:
     """MuJoCo robot following JointCommands.
 
     Args:
-        profile: robot profile (object, name or path; default G1).
+        profile: robot profile (object, name or path; default ``DEFAULT_PROFILE``).
         config: servo and watchdog settings.
     """
 
     def __init__(self, profile: RobotProfile | str | None = None, config: SimConfig | None = None):
         self.config = cfg = config or SimConfig()
-        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+        prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
         self.robot: MujocoRobot = build_mujoco_robot(
             prof,
             timestep=cfg.timestep,

@@ -11,19 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from services.sim.sim_core import SimConfig, SimCore
 from shared.messages import Header, JointCommand
-
-from .sim_core import SimConfig, SimCore
-
-#: Centre of the sine for the arm joints, added to the rest pose [rad]: arms a little
-#: forward and out, so that +-30 degrees on every arm joint at once stays clear of the
-#: torso and thighs (the rest pose is only 0.2 rad from the body).
-ARMS_OUT: dict[str, float] = {
-    "left_shoulder_pitch_joint": -0.3,
-    "right_shoulder_pitch_joint": -0.3,
-    "left_shoulder_roll_joint": 0.5,
-    "right_shoulder_roll_joint": -0.5,
-}
 
 
 def sine_amplitudes(core: SimCore, amplitude: float, moving: np.ndarray) -> np.ndarray:
@@ -33,9 +22,10 @@ def sine_amplitudes(core: SimCore, amplitude: float, moving: np.ndarray) -> np.n
 
 
 def sine_center(core: SimCore, amplitudes: np.ndarray) -> np.ndarray:
-    """Centre pose (n,) [rad]: rest + :data:`ARMS_OUT`, moved so centre +- amplitude fits the limits."""
+    """Centre pose (n,) [rad]: rest + the profile's ``arms_out`` offset (arms clear of the body),
+    moved so centre +- amplitude fits the limits."""
     prof = core.robot.profile
-    c = np.array([prof.rest.get(n, 0.0) + ARMS_OUT.get(n, 0.0) for n in core.joint_names])
+    c = np.array([prof.rest.get(n, 0.0) + prof.arms_out.get(n, 0.0) for n in core.joint_names])
     return np.clip(c, core.lower + amplitudes, core.upper - amplitudes)
 
 
@@ -58,7 +48,7 @@ def measure_tracking(
         include_waist: move the waist joints too (otherwise they are commanded at rest);
             a joint whose range is narrower than 2 A moves over its whole range instead.
         config: servo settings (default :class:`SimConfig`).
-        profile: robot profile (default G1).
+        profile: robot profile (default ``DEFAULT_PROFILE``).
 
     Returns:
         JSON-able dict: ``max_error_deg`` over moving joints, ``rms_error_deg``,
@@ -66,7 +56,8 @@ def measure_tracking(
     """
     core = SimCore(profile, config)
     n = len(core.joint_names)
-    moving = np.array([include_waist or not n_.startswith("waist") for n_ in core.joint_names])
+    waist = set(core.robot.profile.waist)
+    moving = np.array([include_waist or n_ not in waist for n_ in core.joint_names])
     amp = np.deg2rad(amplitude_deg)
     a = sine_amplitudes(core, amp, moving)
     center = sine_center(core, a)

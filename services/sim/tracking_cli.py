@@ -12,7 +12,7 @@ import json
 import logging
 import sys
 
-from .cli import add_sim_options, sim_config
+from services.sim.cli import add_sim_options, sim_config
 
 log = logging.getLogger("mimic.sim")
 
@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from .tracking import measure_tracking
+    from services.sim.tracking import measure_tracking
 
     results = []
     for rate in args.command_rate:

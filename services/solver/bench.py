@@ -34,10 +34,11 @@ import pinocchio as pin
 
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.registry import ALGORITHMS, USES_QP
-from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
+from shared.messages import Header, Target, TaskTargets
 from shared.report import emit_json
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 log = logging.getLogger("mimic.bench.solvers")
 

@@ -7,6 +7,7 @@ import argparse
 from services.solver.qp import QP_BACKENDS
 from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
+from shared.robot.profile import DEFAULT_PROFILE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--id", default="main", help="solver id: commands go to mimic/<session>/solver/<id>/command")
     parser.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
     parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")
-    parser.add_argument("--robot", default=None, help="robot profile name or TOML path (default g1_29dof)")
+    parser.add_argument("--robot", default=None, help=f"robot profile name or TOML path (default {DEFAULT_PROFILE})")
     parser.add_argument("--no-smoothing", action="store_true", help="publish raw solver output (no quintic)")
     parser.add_argument(
         "--orientation-weight", type=float, default=None, help="wrist orientation cost [1/rad] (default: SolverConfig)"

@@ -38,9 +38,8 @@ from services.solver.targets import TargetTracker
 from shared.kinematics import Configuration, FrameTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
+from shared.targets import ELBOWS, WRISTS
 
-WRISTS = ("left_wrist", "right_wrist")
-ELBOWS = ("left_elbow", "right_elbow")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
 #: Shortest step [s] a tick accounts for (ticks closer than this still move by it: 1e-4 s at vmax = 4e-4 rad).

@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from shared.messages import TARGET_NAMES, Header, TaskTargets
+from shared.messages import Header, TaskTargets
 from shared.rotations import quat_to_matrix
+from shared.targets import TARGET_NAMES
 
 
 @dataclass(slots=True)

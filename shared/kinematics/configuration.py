@@ -56,11 +56,6 @@ class Configuration:
         pin.computeJointJacobians(self.model, self.data, self.q)
         pin.updateFramePlacements(self.model, self.data)
 
-    def check(self) -> None:
-        """Raise InvalidConfigurationError when q holds NaN or inf."""
-        if not np.all(np.isfinite(self.q)):
-            raise InvalidConfigurationError(f"q is not finite: {self.q}")
-
     def get_frame_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose of a frame in the base (pelvis) frame.
 

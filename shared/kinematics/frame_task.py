@@ -36,8 +36,6 @@ class FrameTask(Task):
     def __init__(self, frame: str, position_cost: float = 1.0, orientation_cost: float = 1.0, gain: float = 50.0):
         super().__init__(f"frame:{frame}", np.r_[np.full(3, position_cost), np.full(3, orientation_cost)], gain)
         self.frame = frame
-        self.position_cost = float(position_cost)
-        self.orientation_cost = float(orientation_cost)
         self.p_target = np.zeros(3)
         self.R_target = np.eye(3)
         self._err = np.zeros(6)

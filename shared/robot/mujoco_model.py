@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from shared.robot.profile import RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 
 _MESH_RE = re.compile(r'filename="(package://[^"]+)"')
 
@@ -119,7 +119,7 @@ def build_mujoco_robot(
             meshes of a shoulder overlap the torso two and three links up, so a value of 3
             keeps those spurious contacts out while arms still collide with torso and legs.
     """
-    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
     spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(prof))
     spec.option.timestep = timestep
     kp = prof.actuators.get("kp", 400.0)

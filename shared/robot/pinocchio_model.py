@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from shared.robot.profile import TARGET_FRAMES, RobotProfile, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.targets import TARGET_NAMES
 
 
 @dataclass
@@ -20,7 +21,7 @@ class RobotModel:
         joint_names: (n,) controlled joints, solver order (``model`` order).
         lower, upper: (n,) position limits [rad], shrunk by the profile margin.
         vmax: (n,) velocity limits [rad/s] (URDF value capped by the profile).
-        amax: (n,) acceleration limits [rad/s^2] (the profile's).
+        amax: (n,) acceleration limits [rad/s^2] (the profile's ``max_joint_acceleration``).
         q_rest: (n,) rest pose [rad].
         frame_ids: target name -> Pinocchio frame id.
     """
@@ -48,13 +49,18 @@ class RobotModel:
             return self.model.getFrameId(target)
         raise KeyError(f"unknown frame {target!r}; targets: {list(self.frame_ids)}")
 
+    def indices(self, joints) -> list[int]:
+        """Positions in q of the named joints that this model controls (others are skipped)."""
+        wanted = set(joints)
+        return [i for i, n in enumerate(self.joint_names) if n in wanted]
+
     def forward(self, q: np.ndarray, data: pin.Data | None = None) -> pin.Data:
         """Forward kinematics and frame placements for q (n,) [rad]."""
         data = self.data if data is None else data
         pin.framesForwardKinematics(self.model, data, np.asarray(q, dtype=float))
         return data
 
-    def frame_poses(self, q: np.ndarray, names=TARGET_FRAMES) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    def frame_poses(self, q: np.ndarray, names=TARGET_NAMES) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Poses of frames in the base frame: name -> (p (3,) [m], R (3, 3))."""
         data = self.forward(q)
         out = {}
@@ -76,10 +82,10 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
     """Load the profile's URDF with Pinocchio and lock every non-controlled joint at rest.
 
     Args:
-        profile: profile object, name or path (default G1).
+        profile: profile object, name or path (default :data:`DEFAULT_PROFILE`).
         with_waist: control the waist too (17 DoF on the G1) or only the arms (14).
     """
-    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or "g1_29dof")
+    prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
     full = pin.buildModelFromUrdf(str(prof.urdf_path))
     controlled = prof.controlled_joints(with_waist)
     unknown = [j for j in controlled if not full.existJointName(j)]
@@ -99,11 +105,11 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
     lower = reduced.lowerPositionLimit[idx] + prof.limit_margin
     upper = reduced.upperPositionLimit[idx] - prof.limit_margin
     vmax = np.minimum(reduced.velocityLimit[idx], prof.max_joint_velocity)
+    amax = np.full(len(names), prof.max_joint_acceleration)
     q_rest = np.clip(np.array([prof.rest.get(j, 0.0) for j in names]), lower, upper)
     frame_ids = {}
     for target, frame in prof.frames.items():
         if not reduced.existFrame(frame):
             raise KeyError(f"profile {prof.name}: frame {frame!r} for {target} not in URDF")
         frame_ids[target] = reduced.getFrameId(frame)
-    amax = np.full(len(names), prof.max_joint_acceleration)
     return RobotModel(prof, reduced, reduced.createData(), names, lower, upper, vmax, amax, q_rest, frame_ids)

@@ -2,19 +2,45 @@
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-MODELS_DIR = REPO_ROOT / "models"
+from shared.paths import MODELS_DIR
+from shared.targets import SIDES, TARGET_NAMES
+
+#: The robot every service and CLI uses unless told otherwise (``--robot NAME|FILE``).
 DEFAULT_PROFILE = "g1_29dof"
-TARGET_FRAMES = ("left_wrist", "right_wrist", "left_elbow", "right_elbow")
 
 
 class ProfileError(ValueError):
     """A robot profile that cannot be used; the message says why."""
+
+
+@dataclass(frozen=True)
+class ArmJoints:
+    """The joint roles of one arm, read from the profile's ``[arms.<side>]`` table.
+
+    Attributes:
+        joints: the arm chain, shoulder to wrist, in solver order.
+        elbow: the elbow joint (one of ``joints``): joints before it are the shoulder
+            (they move the upper arm), joints after it the wrist (they turn the hand).
+    """
+
+    joints: tuple[str, ...]
+    elbow: str
+
+    @property
+    def shoulder(self) -> tuple[str, ...]:
+        """Shoulder joints: the chain before the elbow joint."""
+        return self.joints[: self.joints.index(self.elbow)]
+
+    @property
+    def wrist(self) -> tuple[str, ...]:
+        """Wrist joints: the chain after the elbow joint."""
+        return self.joints[self.joints.index(self.elbow) + 1 :]
 
 
 @dataclass(frozen=True)
@@ -25,14 +51,17 @@ class RobotProfile:
         name: profile name. urdf_path: absolute URDF path.
         package_dirs: folders that ``package://`` URIs are resolved against.
         base_frame: frame all targets are expressed in.
-        waist, left_arm, right_arm: controlled joint names, in solver order.
-        frames: target name (``left_wrist``, ...) -> robot frame name.
+        waist: waist joints in solver order (may be empty: an arms-only robot).
+        arms: side (``left``/``right``) -> the arm's joint roles.
+        frames: target name (``left_wrist``, ...; at least every ``TARGET_NAMES``) -> robot frame.
         human: target name -> canonical human bone.
         rest: joint name -> rest angle [rad] (unlisted joints rest at 0).
         max_joint_velocity: cap on every joint speed [rad/s].
         max_joint_acceleration: cap on every joint acceleration [rad/s^2].
         limit_margin: shrink of each position limit [rad].
         actuators: MuJoCo servo parameters (kp, kv, armature).
+        arms_out: joint -> offset [rad] from rest holding the arms clear of the body (centre
+            of the servo tracking sine).
     """
 
     name: str
@@ -40,8 +69,7 @@ class RobotProfile:
     package_dirs: tuple[Path, ...]
     base_frame: str
     waist: tuple[str, ...]
-    left_arm: tuple[str, ...]
-    right_arm: tuple[str, ...]
+    arms: dict[str, ArmJoints]
     frames: dict[str, str]
     human: dict[str, str]
     rest: dict[str, float]
@@ -49,11 +77,15 @@ class RobotProfile:
     max_joint_acceleration: float
     limit_margin: float
     actuators: dict[str, float] = field(default_factory=dict)
+    arms_out: dict[str, float] = field(default_factory=dict)
     source: Path | None = None
 
     def controlled_joints(self, with_waist: bool = True) -> tuple[str, ...]:
-        """Controlled joints in solver order: (17,) with the waist, (14,) without."""
-        return (self.waist if with_waist else ()) + self.left_arm + self.right_arm
+        """Controlled joints in solver order: waist (if asked) then each arm in ``SIDES`` order.
+
+        (17,) with the waist, (14,) without on the G1.
+        """
+        return (self.waist if with_waist else ()) + tuple(j for s in SIDES for j in self.arms[s].joints)
 
     def mesh_uri_to_path(self, uri: str) -> Path:
         """Resolve a ``package://`` mesh URI to a file on disk."""
@@ -96,29 +128,66 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
         package_root = (share / urdf.get("package_root", ".")).resolve()
         model = raw["model"]
         frames = dict(raw["frames"])
-        human = dict(raw.get("human", {t: t for t in TARGET_FRAMES}))
+        human = dict(raw.get("human", {t: t for t in TARGET_NAMES}))
+        arms = {s: _arm(raw["arms"][s], f"[arms.{s}]", path) for s in SIDES}
         prof = RobotProfile(
             name=raw.get("name", path.stem),
             urdf_path=urdf_path,
             package_dirs=(package_root,),
             base_frame=model["base_frame"],
             waist=tuple(model.get("waist", ())),
-            left_arm=tuple(model["left_arm"]),
-            right_arm=tuple(model["right_arm"]),
+            arms=arms,
             frames=frames,
             human=human,
             rest={k: float(v) for k, v in raw.get("rest", {}).items()},
-            max_joint_velocity=float(model.get("max_joint_velocity", 3.0)),
-            max_joint_acceleration=float(model["max_joint_acceleration"]),
-            limit_margin=float(model.get("limit_margin", 0.0)),
+            max_joint_velocity=_number(model, "max_joint_velocity", "[model]"),
+            max_joint_acceleration=_number(model, "max_joint_acceleration", "[model]"),
+            limit_margin=_number(model, "limit_margin", "[model]", 0.0),
             actuators={k: float(v) for k, v in raw.get("actuators", {}).items()},
+            arms_out={k: float(v) for k, v in raw.get("arms_out", {}).items()},
             source=path,
         )
     except KeyError as exc:
         raise ProfileError(f"{path}: missing field {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ProfileError(f"{path}: {exc}") from None
+    _validate(prof, path)
+    return prof
+
+
+def _number(table: dict, key: str, where: str, default: float | None = None) -> float:
+    """``table[key]`` as a float; raises KeyError when missing without a default, ValueError naming it."""
+    value = table[key] if default is None else table.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{where} {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def _arm(raw: dict, where: str, path: Path) -> ArmJoints:
+    joints = tuple(raw["joints"])
+    elbow = raw["elbow"]
+    if elbow not in joints:
+        raise ProfileError(f"{path}: {where} elbow {elbow!r} is not one of its joints {list(joints)}")
+    return ArmJoints(joints, elbow)
+
+
+def _validate(prof: RobotProfile, path: Path) -> None:
+    """Raise :class:`ProfileError` on values no robot can have (the message names the field)."""
     if not prof.urdf_path.exists():
         raise ProfileError(f"{path}: URDF {prof.urdf_path} does not exist")
-    missing = [t for t in TARGET_FRAMES if t not in prof.frames]
+    missing = [t for t in TARGET_NAMES if t not in prof.frames]
     if missing:
         raise ProfileError(f"{path}: [frames] lacks {missing}")
-    return prof
+    joints = prof.controlled_joints()
+    dup = sorted({j for j in joints if joints.count(j) > 1})
+    if dup:
+        raise ProfileError(f"{path}: joints {dup} are listed twice in [model] waist / [arms.*]")
+    for key in ("max_joint_velocity", "max_joint_acceleration"):
+        v = getattr(prof, key)
+        if not (math.isfinite(v) and v > 0.0):
+            raise ProfileError(f"{path}: [model] {key} must be a positive number, got {v}")
+    if not (math.isfinite(prof.limit_margin) and prof.limit_margin >= 0.0):
+        raise ProfileError(f"{path}: [model] limit_margin must be >= 0, got {prof.limit_margin}")
+    unknown = sorted(set(prof.arms_out) - set(joints))
+    if unknown:
+        raise ProfileError(f"{path}: [arms_out] names joints that are not controlled: {unknown}")

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
+from shared.paths import REPO_ROOT
+
+REPO = REPO_ROOT
 CLIP = "dataset-1_bye_normal_001.bvh"
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -15,9 +15,9 @@ from services.evaluation.metrics import (
     summarise,
     trace_metrics,
 )
-from services.evaluation.runner import ELBOWS, WRISTS, Trace
-from shared.messages import TARGET_NAMES
+from services.evaluation.runner import Trace
 from shared.robot.pinocchio_model import build_robot_model
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 K = 200
 

@@ -8,9 +8,10 @@ import pytest
 
 from services.evaluation.metrics import reachable_mask, trace_metrics
 from services.evaluation.runner import run_algorithm
-from shared.messages import TARGET_NAMES, Header, Target, TaskTargets
+from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
+from shared.targets import TARGET_NAMES
 
 RATE = 100.0  # target stream [Hz]
 DURATION = 1.5  # [s]
@@ -24,7 +25,7 @@ def robot():
 def joint_trajectory(robot, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Smooth reachable motion around the rest pose: q (n,) [rad], qd (n,) [rad/s] at t [s]."""
     n = robot.nq
-    amp = np.array([0.0 if "waist" in j else 0.25 for j in robot.joint_names])
+    amp = np.array([0.0 if j in robot.profile.waist else 0.25 for j in robot.joint_names])
     w = 2 * np.pi * 0.4
     phase = np.linspace(0.0, np.pi, n)
     s = np.sin(w * t + phase) - np.sin(phase)  # starts at the rest pose

@@ -16,8 +16,9 @@ import zenoh
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import ServiceStatus
+from shared.paths import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 PEER = Path(__file__).with_name("bus_peer.py")
 pytestmark = pytest.mark.integration
 

@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 
 from services.launcher.stack import COMPOSE_FILE, NETWORK_ENV, forget_state, load_stack, local_environment, select
+from shared.paths import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 COMPOSE_BIN = shutil.which("docker-compose", path=str(Path(sys.executable).parent)) or shutil.which("docker-compose")
 
 

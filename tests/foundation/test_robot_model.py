@@ -7,7 +7,7 @@ import pytest
 
 from shared.robot.mujoco_model import build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
-from shared.robot.profile import ProfileError, load_profile
+from shared.robot.profile import DEFAULT_PROFILE, ProfileError, load_profile
 
 
 @pytest.fixture(scope="module")
@@ -45,16 +45,16 @@ def test_limits_and_rest(models):
 
 def test_second_profile_is_a_file(tmp_path):
     src = load_profile().source.read_text()
-    alt = src.replace('name = "g1_29dof"', 'name = "g1_arms_up"').replace(
+    alt = src.replace(f'name = "{DEFAULT_PROFILE}"', 'name = "g1_arms_up"').replace(
         "left_elbow_joint = 1.2", "left_elbow_joint = 0.3"
     )
     path = tmp_path / "g1_arms_up.toml"
     path.write_text(alt)
     rm = build_robot_model(load_profile(path))
-    i = rm.joint_names.index("left_elbow_joint")
+    i = rm.joint_names.index(rm.profile.arms["left"].elbow)
     assert rm.profile.name == "g1_arms_up" and rm.q_rest[i] == pytest.approx(0.3)
 
 
 def test_unknown_profile_lists_known():
-    with pytest.raises(ProfileError, match="g1_29dof"):
+    with pytest.raises(ProfileError, match=DEFAULT_PROFILE):
         load_profile("no_such_robot")

@@ -26,7 +26,6 @@ from shared.messages import (
     MESSAGE_TYPES,
     QUAT_NORM_TOL,
     SCHEMA_VERSION,
-    TARGET_NAMES,
     Bone,
     Header,
     HumanFrame,
@@ -39,6 +38,7 @@ from shared.messages import (
     Target,
     TaskTargets,
 )
+from shared.targets import TARGET_NAMES
 
 JOINTS = tuple(f"joint_{i}" for i in range(17))
 

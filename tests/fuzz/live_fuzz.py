@@ -24,7 +24,6 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -34,10 +33,11 @@ from services.launcher.supervisor import stop_processes
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import HumanFrame, Message, MessageError, ServiceStatus, TaskTargets
+from shared.paths import REPO_ROOT
 from shared.report import emit_json
 from tests.fuzz.fuzz_payloads import adversarial_payload, backwards_sequence, valid_message
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 
 
 @dataclass(frozen=True)

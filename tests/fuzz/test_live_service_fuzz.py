@@ -5,14 +5,14 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from services.launcher.supervisor import stop_processes
+from shared.paths import REPO_ROOT
 from tests.fuzz.live_fuzz import SERVICES, fuzz_live_service, payload_mix
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 

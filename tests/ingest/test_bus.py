@@ -10,7 +10,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,9 +22,10 @@ from services.ingest.xsens import build_datagrams
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import Bone, Header, HumanFrame, Pose
+from shared.paths import REPO_ROOT
 from tests.conftest import free_port
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 pytestmark = pytest.mark.integration
 
 

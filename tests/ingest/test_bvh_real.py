@@ -10,7 +10,7 @@ import pytest
 
 from services.ingest import load_clip
 from services.ingest.bvh import parse_bvh
-from services.ingest.rotations import Y_UP_TO_Z_UP, quat_to_matrix
+from services.ingest.rotations import Y_UP_TO_Z_UP, quats_to_matrices
 
 SEGMENTS = [
     ("pelvis", "spine"),
@@ -92,7 +92,7 @@ def test_pelvis_frame_axes(clips):
         assert np.all(clip.positions["left_shoulder"][:, 1] > 0.05), name
         assert np.all(clip.positions["right_shoulder"][:, 1] < -0.05), name
         assert np.all(clip.positions["head"][:, 2] > 0.3), name
-        R = quat_to_matrix(clip.root_q)
+        R = quats_to_matrices(clip.root_q)
         assert np.all(R[:, 2, 2] > 0.7), name  # pelvis z axis near world up (the "call" clips lean ~40 deg)
         assert np.allclose(clip.positions["pelvis"], 0.0) and clip.valid["pelvis"].all()
 
@@ -137,14 +137,14 @@ def test_root_frame_conversion_against_direct_world_fk(bvh_clips):
                 par = names[j.parent]
                 Rg[j.name], pg[j.name] = Rg[par] @ R, pg[par] + Rg[par] @ trans
         world = {n: 0.01 * Y_UP_TO_Z_UP @ p for n, p in pg.items()}
-        R_root = quat_to_matrix(clip.root_q[t])
+        R_root = quats_to_matrices(clip.root_q[t])
         assert np.allclose(clip.root_p[t], world["Hips"], atol=1e-9)
         for bone, joint in (("left_elbow", "LowerArm_L"), ("right_wrist", "Hand_R"), ("head", "Head")):
             expect = R_root.T @ (world[joint] - world["Hips"])
             assert np.allclose(clip.positions[bone][t], expect, atol=1e-9), (bone, t)
             # orientation: joint frame in the world, expressed in the pelvis frame
             Rw = Y_UP_TO_Z_UP @ Rg[joint]
-            assert np.allclose(quat_to_matrix(clip.quats[bone][t]), R_root.T @ Rw, atol=1e-9)
+            assert np.allclose(quats_to_matrices(clip.quats[bone][t]), R_root.T @ Rw, atol=1e-9)
 
 
 def test_frame_message_roundtrip(clips):

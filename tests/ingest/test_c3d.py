@@ -82,9 +82,9 @@ def test_qualisys_full_body(c3d_dir):
         assert 0.18 < fore.mean() < 0.32 and fore.std() < 0.01
     assert np.median(clip.positions["head"][:, 2]) > 0.4
     # walking: the pelvis moves forward along its own x axis
-    from services.ingest.rotations import quat_to_matrix
+    from services.ingest.rotations import quats_to_matrices
 
-    x_axis = quat_to_matrix(clip.root_q)[:, :, 0]
+    x_axis = quats_to_matrices(clip.root_q)[:, :, 0]
     travel = clip.root_p[-1] - clip.root_p[0]
     assert np.linalg.norm(travel) > 1.0
     assert np.dot(travel / np.linalg.norm(travel), x_axis.mean(axis=0)) > 0.8

@@ -16,7 +16,6 @@ from services.logger.rrd_summary import scalar_rows, summarize
 from services.sim.sim_core import SimConfig, SimCore
 from shared.messages import (
     HUMAN_BONES,
-    TARGET_NAMES,
     Bone,
     Header,
     HumanFrame,
@@ -26,6 +25,7 @@ from shared.messages import (
     Target,
     TaskTargets,
 )
+from shared.targets import TARGET_NAMES
 
 IDENT = np.array([1.0, 0.0, 0.0, 0.0])
 N = 40
@@ -58,7 +58,7 @@ def make_sequence(n: int = N, expected: list | None = None):
         }
         out.append(TaskTargets(hdr, targets).encode())
         q = core.q.copy()
-        q[core.joint_names.index("left_elbow_joint")] += 0.2 * math.sin(k / 5)
+        q[core.joint_names.index(core.robot.profile.arms["left"].elbow)] += 0.2 * math.sin(k / 5)
         for sid in ("main", "alt"):
             cmd = JointCommand(hdr, sid, "hqp", list(core.joint_names), q, 0 * q, [1e-3, 2e-3, 5e-2], 0.2)
             out.append(cmd.encode())

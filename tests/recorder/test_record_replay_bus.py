@@ -21,8 +21,9 @@ from services.recorder.mcap_io import RecordingWriter, read_recording
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import HumanFrame, ServiceStatus
+from shared.paths import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 CLI = [sys.executable, "-m", "services.cli"]
 FAST_STATUS = ("--status-period", "0.2", "--flush-period", "0.2")
 pytestmark = pytest.mark.integration

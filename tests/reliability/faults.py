@@ -21,11 +21,12 @@ import sys
 import tempfile
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[2]
+from shared.paths import REPO_ROOT
+
+REPO = REPO_ROOT
 if str(REPO) not in sys.path:  # as a script
     sys.path.insert(0, str(REPO))
 

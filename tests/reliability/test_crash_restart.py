@@ -29,8 +29,9 @@ from faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
 from services.evaluation.soak import Observer
 from services.launcher.supervisor import stop_processes
 from shared.bus import free_port
+from shared.paths import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 VMAX = max(vmax_by_joint().values())  # [rad/s] (4 on every G1 joint)
 SOLVER_DT = 1.0 / 500.0  # mimic solve default rate

@@ -13,7 +13,6 @@ import collections
 import signal
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,9 +24,10 @@ from services.solver.core import SolverConfig, SolverCore
 from shared.bus import bus_args, open_session
 from shared.keys import Keys
 from shared.messages import Header, JointCommand, ServiceStatus, Target, TaskTargets
+from shared.paths import REPO_ROOT
 from shared.robot.pinocchio_model import build_robot_model
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 TOL = 1e-9  # float round-off only: the limits are hard
 N_TICKS = 300
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])

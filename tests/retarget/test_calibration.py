@@ -9,8 +9,8 @@ import pytest
 from conftest import REST_LEFT, make_frame, random_quat
 
 from services.retarget.calibration import MIN_SPAN, Calibration, CalibrationError, anthropometric, from_recording
-from shared.messages import TARGET_NAMES
 from shared.rotations import quat_to_matrix
+from shared.targets import TARGET_NAMES
 
 
 def test_anthropometric_extents_scale_with_measured_arm_length():

@@ -39,12 +39,10 @@ def test_robot_pose_is_recovered_from_its_own_wrist_and_swivel(robot14, left):
     """A robot configuration with neutral wrist: its wrist plus its own swivel give back its elbow
     (up to the G1's non-intersecting shoulder axes: about 1 cm median over random poses)."""
     rng = np.random.default_rng(3)
-    names = list(robot14.joint_names)
+    wrist_joints = robot14.indices(robot14.profile.arms["left"].wrist)
     errs = []
     for q in robot14.random_configurations(100, rng):
-        for i, n in enumerate(names):
-            if n.startswith("left_wrist"):
-                q[i] = 0.0
+        q[wrist_joints] = 0.0
         P = robot14.frame_poses(q, names=("left_elbow", "left_wrist"))
         sw = human_swivel(left.centre, P["left_elbow"][0], P["left_wrist"][0])
         errs.append(np.linalg.norm(left.place(P["left_wrist"][0], sw) - P["left_elbow"][0]))
@@ -67,8 +65,8 @@ def test_calibration_posture_reaches_a_consistent_pair(robot14, left):
     P = robot14.frame_poses(q, names=("left_elbow", "left_wrist"))
     assert np.linalg.norm(P["left_wrist"][0] - wrist) < 0.01
     assert np.linalg.norm(P["left_elbow"][0] - elbow) < 0.015
-    wrist_joints = [i for i, n in enumerate(robot14.joint_names) if n.startswith("left_wrist")]
-    assert np.all(q[wrist_joints] == 0.0)
+    wrist_joints = robot14.indices(robot14.profile.arms["left"].wrist)
+    assert len(wrist_joints) == 3 and np.all(q[wrist_joints] == 0.0)
 
 
 def test_forearm_map_gives_calibration_orientation_and_follows_the_forearm():

@@ -5,20 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from services.ingest.clip import load_clip
 from services.retarget.calibration import from_recording
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from shared.messages import TARGET_NAMES
 from shared.rotations import quat_to_matrix
+from shared.targets import TARGET_NAMES, elbow_of, wrist_of
 
 #: Seed 000's eqs. (1)-(4) as written (the product defaults are swivel elbows and forearm orientations).
 PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
 
-clip_mod = pytest.importorskip("services.ingest.clip", reason="ingest service (services/ingest/clip.py) not available")
-
 
 @pytest.fixture(scope="module")
 def clips(bvh_clips):
-    return {p.stem: clip_mod.load_clip(p) for p in bvh_clips}
+    return {p.stem: load_clip(p) for p in bvh_clips}
 
 
 def frames_of(clip):
@@ -95,8 +94,8 @@ def test_default_elbow_targets_sit_at_the_robot_arm_lengths_on_real_clips(clips,
         r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
         for out in run(r, frames_of(clip)):
             for side, arm in r.arms.items():
-                t = f"{side}_elbow"
-                w, e = out.targets[f"{side}_wrist"], out.targets[t]
+                t = elbow_of(side)
+                w, e = out.targets[wrist_of(side)], out.targets[t]
                 if not (w.valid and e.valid):
                     continue
                 assert workspace.contains(t, e.p, tol=1e-9), (name, t)

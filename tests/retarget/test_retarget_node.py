@@ -22,7 +22,9 @@ from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.router.cli import router_config
 from shared.bus import ServiceRunner, bus_args, query, zenoh_config
 from shared.keys import Keys
-from shared.messages import TARGET_NAMES, TaskTargets
+from shared.messages import TaskTargets
+from shared.robot.profile import DEFAULT_PROFILE
+from shared.targets import TARGET_NAMES
 
 pytestmark = pytest.mark.integration
 
@@ -121,4 +123,4 @@ def test_mimic_retarget_process_starts_publishes_and_stops_on_sigterm(router, tm
             proc.kill()
             raise
     assert rc == 0, proc.stderr.read()
-    assert list((tmp_path / "cache").glob("workspace_g1_29dof_2000_0_*.npz"))
+    assert list((tmp_path / "cache").glob(f"workspace_{DEFAULT_PROFILE}_2000_0_*.npz"))

@@ -9,8 +9,9 @@ from conftest import make_frame, random_quat
 
 from services.retarget.calibration import anthropometric
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from shared.messages import TARGET_NAMES, TaskTargets
+from shared.messages import TaskTargets
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import TARGET_NAMES
 
 #: These tests check seed 000's eqs. (1)-(4) as written: per-axis elbows, eq. 4 against the rest pose.
 #: The product defaults (swivel elbows, forearm-relative orientation) are covered in test_elbow.py.

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from services.retarget.workspace import Shrink, Workspace, load_workspace, sample_workspace
-from shared.messages import TARGET_NAMES
 from shared.robot.mujoco_model import build_mujoco_robot
+from shared.robot.profile import DEFAULT_PROFILE
+from shared.targets import TARGET_NAMES
 
 
 def test_samples_match_mujoco_forward_kinematics(robot14):
@@ -54,7 +55,7 @@ def test_shrink_forms(workspace):
 def test_cache_round_trip_and_env_override(robot14, tmp_path, monkeypatch):
     monkeypatch.setenv("MIMIC_CACHE_DIR", str(tmp_path))
     a = load_workspace(robot14.profile, samples=500, seed=3, robot=robot14, progress=False)
-    files = list(tmp_path.glob("workspace_g1_29dof_500_3_*.npz"))
+    files = list(tmp_path.glob(f"workspace_{DEFAULT_PROFILE}_500_3_*.npz"))
     assert len(files) == 1 and not a.meta["cached"]
     b = load_workspace(robot14.profile, samples=500, seed=3, shrink=Shrink(0.1), progress=False)
     assert b.meta["cached"]

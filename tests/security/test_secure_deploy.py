@@ -22,8 +22,9 @@ from services.launcher.supervisor import stop_processes
 from shared.bus import ServiceRunner, bus_args
 from shared.keys import Keys
 from shared.messages import ServiceStatus
+from shared.paths import REPO_ROOT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 MAKE_CERTS = REPO / "deploy" / "secure" / "make-certs.sh"
 CLI = (sys.executable, "-m", "services.cli")
 pytestmark = pytest.mark.integration

@@ -13,7 +13,9 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
+from shared.paths import REPO_ROOT
+
+REPO = REPO_ROOT
 SCRIPT = """
 import json, sys
 from pathlib import Path

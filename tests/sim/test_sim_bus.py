@@ -41,7 +41,7 @@ def _wait(pred, timeout=10.0):
 def test_follow_switch_watchdog_and_rejects_over_zenoh(zenoh_endpoint):
     hub = open_session(bus_args(mode="router", listen=[zenoh_endpoint], connect=[]))
     core = SimCore()
-    elbow = core.joint_names.index("left_elbow_joint")
+    elbow = core.joint_names.index(core.robot.profile.arms["left"].elbow)
     q_main = core.q.copy()
     q_main[elbow] = 0.4
     q_alt = core.q.copy()
@@ -146,7 +146,7 @@ def test_lockstep_over_zenoh_advances_once_per_command_in_order(zenoh_endpoint):
                 assert states == []  # lock-step: no command, no time, no state
                 q = core.q.copy()
                 for k in range(n):
-                    q[core.joint_names.index("right_elbow_joint")] = 1.2 - 0.01 * k
+                    q[core.joint_names.index(core.robot.profile.arms["right"].elbow)] = 1.2 - 0.01 * k
                     pub.put(JointCommand(Header(k, k * 0.01), "main", "t", list(core.joint_names), q, 0 * q).encode())
                 assert _wait(lambda: len(states) == n)
             stop.set()

@@ -7,8 +7,9 @@ import pytest
 
 from services.sim.sim_core import SimConfig, SimCore
 from services.sim.tracking import measure_tracking
-from shared.messages import TARGET_NAMES, Header, JointCommand
+from shared.messages import Header, JointCommand
 from shared.robot.pinocchio_model import build_robot_model
+from shared.targets import TARGET_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +43,13 @@ def test_arms_track_a_1hz_30deg_sine_within_2_degrees():
 def test_state_reports_the_applied_header_and_frames_matching_pinocchio(kin):
     core = SimCore(config=SimConfig(watchdog=1.0))
     q = kin.q_rest.copy()
-    q[core.joint_names.index("left_elbow_joint")] = 0.6
+    q[core.joint_names.index(core.robot.profile.arms["left"].elbow)] = 0.6
     assert core.apply(_cmd(core, q, seq=42))
     core.step_physics(600)
     st = core.state()
     assert st.hdr.seq == 42 and st.hdr.t0 == 123 and not st.holding
     assert st.sim_time == pytest.approx(0.6)
-    assert abs(st.q[core.joint_names.index("left_elbow_joint")] - 0.6) < np.deg2rad(0.5)
+    assert abs(st.q[core.joint_names.index(core.robot.profile.arms["left"].elbow)] - 0.6) < np.deg2rad(0.5)
     # Achieved poses are those of the simulated q, checked against Pinocchio's FK.
     ref = kin.frame_poses(st.q[[core.joint_names.index(n) for n in kin.joint_names]])
     for name in TARGET_NAMES:
@@ -118,7 +119,7 @@ def test_bad_commands_are_rejected_and_never_applied(kin):
     assert np.all(core.q >= core.hard_lower - 1e-3) and np.all(core.q <= core.hard_upper + 1e-3)
     # Inside the URDF limits but past the margin: applied, clipped into the soft limits.
     edge = good.copy()
-    j = core.joint_names.index("left_elbow_joint")
+    j = core.joint_names.index(core.robot.profile.arms["left"].elbow)
     edge[j] = core.hard_upper[j] - 1e-3
     assert core.apply(_cmd(core, edge, seq=6))
     assert core.counters.clipped == 1
@@ -129,10 +130,10 @@ def test_bad_commands_are_rejected_and_never_applied(kin):
 
 def test_partial_commands_move_only_the_named_joints(kin):
     core = SimCore(config=SimConfig(watchdog=1.0))
-    names = ["right_elbow_joint"]
+    names = [core.robot.profile.arms["right"].elbow]
     assert core.apply(_cmd(core, [0.5], joints=names))
     core.step_physics(500)
-    j = core.joint_names.index("right_elbow_joint")
+    j = core.joint_names.index(core.robot.profile.arms["right"].elbow)
     others = np.delete(np.arange(len(core.joint_names)), j)
     assert abs(core.q[j] - 0.5) < np.deg2rad(0.5)
     assert np.max(np.abs(core.q[others] - kin.q_rest[others])) < np.deg2rad(1.0)

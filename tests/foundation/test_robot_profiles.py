@@ -1,0 +1,62 @@
+"""Robot profile schema: joint roles, acceleration limits, and refusal of bad profiles."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from shared.robot.pinocchio_model import build_robot_model
+from shared.robot.profile import ProfileError, load_profile
+from shared.targets import SIDES
+
+
+def _variant(tmp_path, name: str, edit) -> str:
+    """Write a copy of the default profile after ``edit(text) -> text``; returns its path."""
+    text = load_profile().source.read_text()
+    path = tmp_path / f"{name}.toml"
+    path.write_text(edit(text.replace(f'name = "{load_profile().name}"', f'name = "{name}"')))
+    return str(path)
+
+
+def test_g1_profile_roles():
+    prof = load_profile()
+    for side in SIDES:
+        arm = prof.arms[side]
+        # the roles split the chain exactly: shoulder + elbow + wrist, in order
+        assert (*arm.shoulder, arm.elbow, *arm.wrist) == arm.joints
+        assert len(arm.shoulder) == 3 and len(arm.wrist) == 3
+    assert prof.controlled_joints()[: len(prof.waist)] == prof.waist
+    assert prof.max_joint_acceleration > 0 and set(prof.arms_out) <= set(prof.controlled_joints())
+
+
+def test_amax_beside_vmax():
+    rm = build_robot_model()
+    assert rm.amax.shape == rm.vmax.shape == (rm.nq,)
+    assert np.all(rm.amax == rm.profile.max_joint_acceleration)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            lambda t: t.replace("max_joint_acceleration = 30.0", "max_joint_acceleration = -1.0"),
+            "max_joint_acceleration",
+        ),
+        (lambda t: re.sub(r"^max_joint_acceleration = .*$", "", t, flags=re.M), "max_joint_acceleration"),
+        (lambda t: t.replace('elbow = "left_elbow_joint"', 'elbow = "left_knee_joint"'), r"\[arms.left\] elbow"),
+        (lambda t: t.replace("[arms.right]", "[arms.righty]"), "missing field 'right'"),
+        (lambda t: t.replace('left_elbow = "left_elbow_link"', ""), "lacks"),
+        (
+            lambda t: t.replace('waist = ["waist_yaw_joint",', 'waist = ["left_elbow_joint", "waist_yaw_joint",'),
+            "twice",
+        ),
+        (lambda t: t.replace("max_joint_velocity = 4.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
+        (lambda t: t.replace("left_shoulder_pitch_joint = -0.3", "left_knee_joint = -0.3"), "arms_out"),
+    ],
+)
+def test_bad_profiles_are_refused_with_the_field(tmp_path, edit, message):
+    path = _variant(tmp_path, "bad", edit)
+    with pytest.raises(ProfileError, match=message):
+        load_profile(path)
