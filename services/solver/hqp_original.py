@@ -25,6 +25,7 @@ from services.solver.active_set import refine_on_active_set
 from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
 from services.solver.linalg import split_row_space
+from services.solver.inequalities import NO_BOUND, Inequalities
 from services.solver.qp import QpBackend
 
 
@@ -44,8 +45,18 @@ class HqpOriginal(CascadeQp):
     def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, refine: bool = True):
         super().__init__(backend, eps, refine)
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self,
+        As: Sequence[np.ndarray],
+        bs: Sequence[np.ndarray],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
+    ):
         n = lb.shape[0]
+        G = gl = gu = None
+        if ineq is not None and ineq.rows:
+            G, gl, gu = ineq.G, np.full(ineq.rows, NO_BOUND), ineq.h
         x = np.zeros(n)
         iters = calls = 0
         reason = ""
@@ -61,22 +72,28 @@ class HqpOriginal(CascadeQp):
                     break  # higher levels pin every variable
                 E = np.ascontiguousarray(split.Q[:, : split.rank].T)
                 e = E @ x
-            r = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+            r = self.backend.solve(H, f, lb=lb, ub=ub, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
             if not r.ok:
                 # Degenerate stacks can be called infeasible by an active-set solver: one retry,
                 # better conditioned; the refinement below removes the extra regularisation's bias.
                 H.flat[:: n + 1] += RETRY_EPS
-                r2 = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+                r2 = self.backend.solve(H, f, lb=lb, ub=ub, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
                 r2.iters += r.iters
                 r = r2
             iters += r.iters
             calls += 1
-            if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL):
+            if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL) or (G is not None and not ineq.satisfied(r.x, 1e-7)):
                 why = r.status if not r.ok else "QP left the box"
                 if k == 0:
                     return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
                 reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
                 break
-            xs = refine_on_active_set(A, b, r.x, None, lb, ub, E, e, eps=eps) if self.refine else r.x
+            if not self.refine:
+                xs = r.x
+            elif G is None:
+                xs = refine_on_active_set(A, b, r.x, None, lb, ub, E, e, eps=eps)
+            else:
+                Gs = np.vstack((np.eye(n), G))
+                xs = refine_on_active_set(A, b, r.x, Gs, np.r_[lb, gl], np.r_[ub, gu], E, e, eps=eps)
             x = clip(np.array(xs), lb, ub)
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
