@@ -14,8 +14,8 @@ from tqdm import tqdm
 from services.evaluation.metrics import REACHABLE_TOL, reachable_mask, summarise, trace_metrics
 from services.evaluation.runner import EVAL_RETARGET, REFERENCE_ALGO, load_and_retarget, run_algorithm
 from services.retarget.mapping import ELBOW_PLACEMENTS, ORIENTATION_REFERENCES
-from services.solver.registry import ALGORITHMS
 from services.solver.core import SolverConfig
+from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
 log = logging.getLogger("mimic.eval")

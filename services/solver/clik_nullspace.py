@@ -42,7 +42,9 @@ class ClikNullspace(Algorithm):
         self.eta = eta
         self.damping = damping
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None):
+    def solve_matrices(
+        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
+    ):
         # ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
         split = split_row_space(As[0])
         qd = split.lstsq(bs[0], self.damping)

@@ -34,8 +34,8 @@ from services.solver.base import Solution
 from services.solver.bounds import JointBounds
 from services.solver.collision import SelfCollisionAvoidance
 from services.solver.inequalities import Inequalities
-from services.solver.recovery import LockupRecovery
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
+from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
 from shared.kinematics import Configuration, FrameTask, PositionTask, PostureTask

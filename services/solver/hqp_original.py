@@ -24,8 +24,8 @@ import numpy as np
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
-from services.solver.linalg import split_row_space
 from services.solver.inequalities import NO_BOUND, Inequalities
+from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
 
