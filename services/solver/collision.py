@@ -137,12 +137,10 @@ class SelfCollisionAvoidance:
         near = np.flatnonzero(self.lower_bounds() < dmax)
         self.candidates = near.size
         out = []
-        ft = self._fromto
         for i in near:
-            a, b = int(self.pairs[i, 0]), int(self.pairs[i, 1])
-            dist = mujoco.mj_geomDistance(m, d, a, b, dmax, ft)
-            if dist < dmax:
-                out.append(PairDistance(a, b, float(dist), ft[:3].copy(), ft[3:].copy()))
+            pd = pair_distance(m, d, int(self.pairs[i, 0]), int(self.pairs[i, 1]), dmax, self._fromto)
+            if pd is not None:
+                out.append(pd)
         out.sort(key=lambda pd: pd.distance)
         return out
 
@@ -169,21 +167,51 @@ class SelfCollisionAvoidance:
         ``n^T (J_b(p_b) - J_a(p_a))`` with the witness points fixed on their links (kinematics at the
         last ``set_q``/``rows``).
         """
-        m, d = self.model, self.data
         if not self._com_ready:
-            mujoco.mj_comPos(m, d)  # mj_jac reads cdof and subtree_com
+            mujoco.mj_comPos(self.model, self.data)  # mj_jac reads cdof and subtree_com
             self._com_ready = True
-        mujoco.mj_jac(m, d, self._jac_a, None, pd.p_a, int(m.geom_bodyid[pd.geom_a]))
-        mujoco.mj_jac(m, d, self._jac_b, None, pd.p_b, int(m.geom_bodyid[pd.geom_b]))
-        return self.normal(pd) @ (self._jac_b[:, self.dof_idx] - self._jac_a[:, self.dof_idx])
+        return distance_gradient(self.model, self.data, pd, self._jac_a, self._jac_b)[self.dof_idx]
 
-    def normal(self, pd: PairDistance) -> np.ndarray:
-        """Unit vector (3,) along which the pair's signed distance grows (from a towards b)."""
-        v = pd.p_b - pd.p_a
-        if abs(pd.distance) > DEGENERATE:
-            nv = np.linalg.norm(v)
-            if nv > DEGENERATE:
-                # (p_b - p_a) = d n: it points back from b to a when the pair penetrates (d < 0).
-                return v / nv * np.sign(pd.distance)
-        v = self.data.geom_xpos[pd.geom_b] - self.data.geom_xpos[pd.geom_a]
-        return v / max(np.linalg.norm(v), DEGENERATE)
+
+def pair_distance(
+    model: mujoco.MjModel, data: mujoco.MjData, a: int, b: int, dmax: float, fromto: np.ndarray | None = None
+) -> PairDistance | None:
+    """Signed distance [m] of geoms a and b and their witness points (world frame), or None beyond dmax [m].
+
+    Kinematics (``mj_kinematics``) must be current. Negative: penetration depth.
+    """
+    ft = np.zeros(6) if fromto is None else fromto
+    dist = mujoco.mj_geomDistance(model, data, a, b, dmax, ft)
+    if dist >= dmax:
+        return None
+    return PairDistance(a, b, float(dist), ft[:3].copy(), ft[3:].copy())
+
+
+def pair_normal(data: mujoco.MjData, pd: PairDistance) -> np.ndarray:
+    """Unit vector (3,) (world frame) along which the pair's signed distance grows, from a towards b."""
+    v = pd.p_b - pd.p_a
+    if abs(pd.distance) > DEGENERATE:
+        nv = np.linalg.norm(v)
+        if nv > DEGENERATE:
+            # p_b - p_a = d n: it points back from b to a when the pair penetrates (d < 0).
+            return v / nv * np.sign(pd.distance)
+    v = data.geom_xpos[pd.geom_b] - data.geom_xpos[pd.geom_a]
+    return v / max(np.linalg.norm(v), DEGENERATE)
+
+
+def distance_gradient(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    pd: PairDistance,
+    jac_a: np.ndarray | None = None,
+    jac_b: np.ndarray | None = None,
+) -> np.ndarray:
+    """(nv,) d(distance)/d(qpos velocity) of a pair: ``n^T (J_b(p_b) - J_a(p_a))``, witness points on their bodies.
+
+    Needs ``mj_kinematics`` and ``mj_comPos`` current. jac_a, jac_b: optional (3, nv) buffers.
+    """
+    ja = np.zeros((3, model.nv)) if jac_a is None else jac_a
+    jb = np.zeros((3, model.nv)) if jac_b is None else jac_b
+    mujoco.mj_jac(model, data, ja, None, pd.p_a, int(model.geom_bodyid[pd.geom_a]))
+    mujoco.mj_jac(model, data, jb, None, pd.p_b, int(model.geom_bodyid[pd.geom_b]))
+    return pair_normal(data, pd) @ (jb - ja)

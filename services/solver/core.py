@@ -325,6 +325,11 @@ class SolverCore:
         lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
         ineq = self._ineq = self._collision_rows(lb, ub)
         sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
+        if not sol.ok and ineq is not None and ineq.rows:
+            # Rows each feasible but not together (two pairs braking against each other): no pair may
+            # approach faster than braking every joint would make it.
+            ineq.relax_to(np.minimum(np.maximum(0.0, lb), ub))
+            sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
         self.counts["qp_calls"] += sol.qp_calls
         qd, reason = self._checked_velocity(sol, lb, ub)
         status, reason = self._status(sol, held, reason)
@@ -333,11 +338,11 @@ class SolverCore:
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
     def _collision_rows(self, lb: np.ndarray, ub: np.ndarray) -> Inequalities | None:
-        """Self-collision damper rows at q_raw, jointly feasible with this step's box (None: off)."""
+        """Self-collision damper rows at q_raw, each one feasible within this step's box (None: off)."""
         if self.collision is None:
             return None
         ineq = self.collision.rows(self.q_raw)
-        ineq.relax_to(np.minimum(np.maximum(0.0, lb), ub))
+        ineq.reachable_within(lb, ub)
         return ineq
 
     def _collision_reason(self, qd: np.ndarray) -> str:

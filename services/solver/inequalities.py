@@ -37,6 +37,17 @@ class Inequalities:
         """Largest ``G x - h`` above 0 (0 when satisfied or no rows)."""
         return float(max(np.max(self.G @ x - self.h), 0.0)) if self.rows else 0.0
 
+    def reachable_within(self, lb: np.ndarray, ub: np.ndarray, slack: float = 1e-6) -> None:
+        """Raise each ``h_i`` to at least the smallest ``G_i x`` the box ``[lb, ub]`` allows (in place).
+
+        A row the box cannot meet (a pair closer than its damper allows, approaching faster than one
+        step's acceleration can stop) asks for the most the box allows: brake that pair as hard as the
+        joint limits permit. Each row is then feasible on its own; :meth:`relax_to` makes them jointly so.
+        """
+        if self.rows:
+            least = np.minimum(self.G * lb, self.G * ub).sum(axis=1) + slack
+            np.maximum(self.h, least, out=self.h)
+
     def relax_to(self, x0: np.ndarray, slack: float = 1e-6) -> None:
         """Raise each ``h_i`` to at least ``G_i x0 + slack`` (in place), so that x0 (n,) meets every row.
 
