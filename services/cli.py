@@ -24,14 +24,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "retarget-plot": ("services.retarget.plot_cli", "plot operator vs robot workspaces and mapped trajectories"),
     "solve": ("services.solver.cli", "strict-priority HQP solver publishing JointCommands"),
     "sim": ("services.sim.cli", "MuJoCo simulation following one solver's commands"),
-    "sim-track": ("services.sim.tracking_cli", "measure servo tracking of a 1 Hz sine (JSON)"),
     "log": ("services.logger.cli", "Rerun logger recording everything on the bus"),
-    "log-bench": ("services.logger.bench_cli", "logger throughput benchmark (JSON)"),
     "eval": ("services.evaluation.cli", "offline evaluation of algorithms on clips (JSON + plots)"),
-    "bench": ("services.evaluation.bench_cli", "benchmarks: solvers, pipeline"),
+    "bench": ("services.evaluation.bench_cli", "benchmarks (JSON): solvers, pipeline, logger, recorder, ingest, ..."),
     "record": ("services.recorder.record_cli", "record every bus message to MCAP"),
     "replay": ("services.recorder.replay_cli", "replay an MCAP recording onto the bus"),
-    "record-bench": ("services.recorder.bench_cli", "recorder loss/memory benchmark: N messages at R Hz (JSON)"),
 }
 
 

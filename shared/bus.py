@@ -154,6 +154,7 @@ class StatusCounters:
         self._lock = threading.Lock()
         self._counts: dict[str, int] = {}
         self._rejects: dict[str, int] = {}
+        self._outcomes: dict[str, int] = {}
         self._rates: dict[str, _Rate] = {}
         self._last_error = ""
 
@@ -174,6 +175,11 @@ class StatusCounters:
             self._counts["published"] = self._counts.get("published", 0) + 1
             self._counts[f"published.{stream}"] = self._counts.get(f"published.{stream}", 0) + 1
             self._rates.setdefault(f"out.{stream}", _Rate()).tick(now)
+
+    def outcome(self, name: str) -> None:
+        """Count one result of the service's own work (e.g. a command's status), apart from messages."""
+        with self._lock:
+            self._outcomes[name] = self._outcomes.get(name, 0) + 1
 
     def dropped(self, stream: str, n: int = 1) -> None:
         self._count("dropped", n)
@@ -212,6 +218,7 @@ class StatusCounters:
                 rejects=dict(self._rejects),
                 last_error=self._last_error,
                 extra=dict(self.extra),
+                outcomes=dict(self._outcomes),
             )
 
 

@@ -20,6 +20,7 @@ that services count in their :class:`ServiceStatus`.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ SCHEMA_VERSION = 1
 MAX_PAYLOAD_BYTES = 1 << 20
 #: Largest array length accepted anywhere in a message.
 MAX_ITEMS = 256
+#: Longest string or binary field [bytes].
+MAX_STR_BYTES = 4096
 #: Tolerance on ``|q| == 1`` for quaternions on the wire.
 QUAT_NORM_TOL = 1e-3
 
@@ -247,6 +250,81 @@ def _check_version_and_type(d: dict, type_name: str) -> None:
         raise MessageError("type", f"message type {t!r}, expected {type_name!r}")
 
 
+def unpack(payload: bytes | bytearray | memoryview) -> Any:
+    """msgpack bytes -> Python objects, within the bus limits (the one msgpack decoder of mimic).
+
+    Limits: ``MAX_PAYLOAD_BYTES`` in all, ``MAX_ITEMS * 4`` array items, ``MAX_ITEMS`` map
+    entries, ``MAX_STR_BYTES`` per string and binary; map keys must be str or bytes.
+
+    Raises:
+        MessageError: "size" (too large) or "msgpack" (not valid msgpack or over a limit).
+    """
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise MessageError("size", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    try:
+        return msgpack.unpackb(
+            bytes(payload),
+            raw=False,
+            strict_map_key=True,
+            max_array_len=MAX_ITEMS * 4,
+            max_map_len=MAX_ITEMS,
+            max_str_len=MAX_STR_BYTES,
+            max_bin_len=MAX_STR_BYTES,
+        )
+    except Exception as exc:  # msgpack raises a zoo of types on garbage
+        raise MessageError("msgpack", f"not valid msgpack ({type(exc).__name__}: {exc})") from None
+
+
+def unpack_message(payload: bytes | bytearray | memoryview, type_name: str) -> dict:
+    """:func:`unpack` a message's top-level map and check its schema version and type name.
+
+    Raises:
+        MessageError: as :func:`unpack`, or "type"/"version" for a wrong map, type or version.
+    """
+    d = _dict(unpack(payload), type_name or "message")
+    _check_version_and_type(d, type_name)
+    return d
+
+
+def peek(payload: bytes | bytearray | memoryview) -> dict | None:
+    """The top-level map of a payload, unvalidated (None if unreadable or not a map); never raises."""
+    try:
+        d = unpack(payload)
+    except MessageError:
+        return None
+    return d if isinstance(d, dict) else None
+
+
+#: Largest query payload (hand-typed commands and small maps) [bytes].
+MAX_QUERY_BYTES = 64 * 1024
+
+
+def parse_query(payload: bytes | bytearray | memoryview) -> Any:
+    """A queryable's payload as people and programs send it: msgpack, JSON or plain text, in that order.
+
+    Returns:
+        the unpacked value (a map, list or str); text is stripped. A payload that is valid
+        msgpack but neither a str, map nor list (one printable byte is: ``b"b"`` unpacks to 98)
+        is read as text.
+
+    Raises:
+        MessageError: "size" above ``MAX_QUERY_BYTES``.
+    """
+    if len(payload) > MAX_QUERY_BYTES:
+        raise MessageError("size", f"query payload of {len(payload)} bytes exceeds {MAX_QUERY_BYTES}")
+    raw = bytes(payload)
+    try:
+        value = unpack(raw)
+    except MessageError:
+        try:
+            value = json.loads(raw.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            value = None
+    if not isinstance(value, (str, dict, list)):
+        value = raw.decode(errors="replace").strip()
+    return value
+
+
 class Message:
     """Base of all bus messages: ``encode()`` and ``decode(payload)``."""
 
@@ -272,22 +350,7 @@ class Message:
         Raises:
             MessageError: whatever is wrong with it, never anything else.
         """
-        if len(payload) > MAX_PAYLOAD_BYTES:
-            raise MessageError("size", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        try:
-            d = msgpack.unpackb(
-                bytes(payload),
-                raw=False,
-                strict_map_key=True,
-                max_array_len=MAX_ITEMS * 4,
-                max_map_len=MAX_ITEMS,
-                max_str_len=4096,
-                max_bin_len=4096,
-            )
-        except Exception as exc:  # msgpack raises a zoo of types on garbage
-            raise MessageError("msgpack", f"not valid msgpack ({type(exc).__name__}: {exc})") from None
-        d = _dict(d, cls.TYPE or "message")
-        _check_version_and_type(d, cls.TYPE)
+        d = unpack_message(payload, cls.TYPE)
         try:
             return cls.from_body(d)
         except MessageError:
@@ -559,6 +622,8 @@ class ServiceStatus(Message):
         rejects: reason tag -> count of rejected inputs.
         last_error: text of the last rejected input or failure.
         extra: service-specific figures (latency percentiles, ...).
+        outcomes: result tag -> count of the service's own results (e.g. the solver's
+            JointCommand status "ok", "infeasible", "held"); not messages received.
     """
 
     TYPE: ClassVar[str] = "ServiceStatus"
@@ -571,9 +636,11 @@ class ServiceStatus(Message):
     rejects: dict[str, int] = field(default_factory=dict)
     last_error: str = ""
     extra: dict[str, float] = field(default_factory=dict)
+    outcomes: dict[str, int] = field(default_factory=dict)
 
     def body(self) -> dict:
         return {
+            "outc": {k: int(v) for k, v in self.outcomes.items()},
             "svc": self.service,
             "inst": self.instance,
             "state": self.state,
@@ -601,6 +668,7 @@ class ServiceStatus(Message):
             fmap(d.get("rejects", {}), "rejects", _int),
             _str(d.get("err", ""), "err", 4096),
             fmap(d.get("extra", {}), "extra", _float),
+            fmap(d.get("outc", {}), "outcomes", _int),
         )
 
 
@@ -609,18 +677,9 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 
-def _peek(payload: bytes) -> dict | None:
-    """The top-level map of a payload, unvalidated (None if unreadable or not a map)."""
-    try:
-        d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-    except Exception:
-        return None
-    return d if isinstance(d, dict) else None
-
-
 def peek_type(payload: bytes) -> str | None:
     """Message type name of a payload without full validation (None if unreadable)."""
-    d = _peek(payload)
+    d = peek(payload)
     return None if d is None else d.get("t")
 
 
@@ -630,7 +689,7 @@ def peek_header(payload: bytes) -> Header | None:
     For observers (benchmarks, monitors) that only need ``seq`` and ``t0`` at high rate;
     services decode fully.
     """
-    d = _peek(payload)
+    d = peek(payload)
     if d is None or "hdr" not in d:
         return None
     try:

@@ -43,3 +43,24 @@ def c3d_dir() -> Path:
 def zenoh_endpoint() -> str:
     """A fresh loopback endpoint for a router started by the test."""
     return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture()
+def local_stack(zenoh_endpoint):
+    """A :class:`LocalStack` on a fresh loopback router and session; stopped after the test.
+
+    Nothing runs yet: call ``start_router()`` or ``start_all([...])`` (which waits on liveliness).
+    """
+    from services.launcher.local_stack import LocalStack
+
+    session = f"t{zenoh_endpoint.rsplit(':', 1)[1]}"
+    with LocalStack(session, zenoh_endpoint, status_period=0.2) as stack:
+        yield stack
+
+
+@pytest.fixture(scope="session")
+def mocap_sources(mocap_dir):
+    """SOURCES.md of the real mocap data, parsed (the facts tests check clips against)."""
+    from tests.support.mocap_sources import MocapSources
+
+    return MocapSources.read(mocap_dir)

@@ -1,13 +1,22 @@
-"""``mimic bench {solvers,pipeline}``: benchmarks that print JSON anyone can rerun."""
+"""``mimic bench <what>``: every benchmark, each printing JSON anyone can rerun.
+
+Each bench module provides ``add_arguments(parser)`` and ``main(args) -> int``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
 
+#: bench name -> (module, one-line help)
 BENCHES = {
     "solvers": ("services.solver.bench", "per-tick time of every algorithm with PIQP and DAQP, beside mink"),
     "pipeline": ("services.evaluation.pipeline_bench", "the real stack on loopback at a fixed mocap rate"),
+    "logger": ("services.logger.bench_cli", "logger throughput: bus messages per second its core takes"),
+    "recorder": ("services.recorder.bench_cli", "recorder loss and memory: N messages at R Hz through a router"),
+    "ingest": ("services.ingest.bench", "clips loaded, parse speed, the error a broken file gives"),
+    "retarget": ("services.retarget.bench", "retargeting figures per mapping mode over the real clips"),
+    "sim-track": ("services.sim.tracking_cli", "servo tracking of a sine in the MuJoCo sim"),
 }
 
 

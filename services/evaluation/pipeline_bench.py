@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import tempfile
 import threading
 import time
@@ -21,10 +20,8 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from services.launcher.stack import forget_state, load_stack, local_environment
-from services.launcher.supervisor import Supervisor
-from shared.bus import bus_args, free_port, open_session
-from shared.keys import Keys
+from services.launcher.local_stack import LocalStack
+from shared.bus import free_port
 from shared.messages import ServiceStatus, peek_header
 from shared.report import emit_json
 
@@ -69,28 +66,14 @@ def _frames(n_frames: int, rate: float):
 def run(args: argparse.Namespace) -> dict:
     port = args.port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    session = f"bench{port}"
-    keys = Keys(session)
-    stack = load_stack(env={"MIMIC_SESSION": session, "SOLVER": args.algo})
-    forget_state(stack.values(), Path.cwd())
-    sup = Supervisor(out=sys.stderr)
-    wanted = ["zenoh", "retarget", "solver", "sim"]
     extra = {"solver": args.solver_args.split(), "sim": args.sim_args.split()}
     n_total = int((args.duration + args.warmup) * args.rate)
     clip, idx = _frames(n_total, args.rate)
     arrivals = {h: _Arrivals() for h in HOPS}
     statuses: dict[str, ServiceStatus] = {}
-    try:
-        for name in wanted:
-            spec = stack[name]
-            argv = [sys.executable, "-m", "services.cli", *spec.command[1:], *extra.get(name, [])]
-            env = local_environment(spec, endpoint)
-            env["MIMIC_SESSION"] = session
-            sup.start(name, argv, env)
-            if name == "zenoh":
-                time.sleep(0.8)
-        z = open_session(bus_args(connect=[endpoint], session=session))
-        subs = []
+    with LocalStack(f"bench{port}", endpoint, env={"SOLVER": args.algo}) as stack:
+        stack.start_router()
+        z, keys = stack.bus, stack.keys
 
         def hop(name: str):
             # Header only: full validation of every message at every hop would cost the
@@ -103,27 +86,16 @@ def run(args: argparse.Namespace) -> dict:
 
             return cb
 
-        subs.append(z.declare_subscriber(keys.targets, hop("retarget")))
-        subs.append(z.declare_subscriber(keys.command("main"), hop("solver")))
-        subs.append(z.declare_subscriber(keys.sim_state, hop("sim")))
-        subs.append(
+        subs = [
+            z.declare_subscriber(keys.targets, hop("retarget")),
+            z.declare_subscriber(keys.command("main"), hop("solver")),
+            z.declare_subscriber(keys.sim_state, hop("sim")),
             z.declare_subscriber(
                 keys.all_status,
                 lambda s: statuses.__setitem__(str(s.key_expr), ServiceStatus.decode(s.payload.to_bytes())),
-            )
-        )
-        alive: set[str] = set()
-        tok = z.liveliness().declare_subscriber(
-            keys.all_alive, lambda s: alive.add(str(s.key_expr).split("/")[3]), history=True
-        )
-        deadline = time.monotonic() + 90
-        while not {"retarget", "solver", "sim"} <= alive:
-            exited = sup.poll()
-            if exited:
-                raise RuntimeError(f"services exited during start-up: {exited}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"services not up: {sorted({'retarget', 'solver', 'sim'} - alive)}")
-            time.sleep(0.1)
+            ),
+        ]
+        stack.start_all(HOPS, extra, timeout=90)
         time.sleep(0.5)
         pub = z.declare_publisher(keys.mocap_frame, express=True)
         t0_pub: dict[int, int] = {}
@@ -147,13 +119,9 @@ def run(args: argparse.Namespace) -> dict:
             pub.put(frame.encode())
         elapsed = time.monotonic() - start
         time.sleep(1.5)
-        tok.undeclare()
+        pub.undeclare()
         for s in subs:
             s.undeclare()
-        z.close()
-    finally:
-        sup.stop_all()
-        forget_state(stack.values(), Path.cwd())  # a throw-away session leaves no state behind
 
     first = int(args.warmup * args.rate)
     measured = range(first, n_total)

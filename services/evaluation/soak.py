@@ -11,9 +11,9 @@ and measures
 * every service's resident memory (``/proc/<pid>/status`` VmRSS) every
   ``--sample-period`` s: start, end, max and the least-squares slope [MB/min].
 
-It prints one JSON report (also written to ``--json``). The :class:`LocalStack`,
-:class:`Observer` and :class:`FramePublisher` helpers are reused by the fault
-injection tests in ``tests/reliability``.
+It prints one JSON report (also written to ``--json``). The stack is started by
+:class:`~services.launcher.local_stack.LocalStack`; :class:`FramePublisher` is reused by
+the fault injection tests (``tests/support/faults.py``).
 
 Examples::
 
@@ -24,243 +24,57 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import io
 import logging
-import os
-import signal
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from services.launcher.stack import forget_state, load_stack, local_environment
-from services.launcher.supervisor import Supervisor, rss_mb
-from shared.bus import bus_args, free_port, open_session, wait_for_endpoint
+from services.launcher.local_stack import LocalStack
+from services.launcher.supervisor import rss_mb
+from shared.bus import free_port
 from shared.keys import Keys
-from shared.messages import SCHEMA_VERSION, HumanFrame, JointCommand, RobotState, ServiceStatus
+from shared.messages import SCHEMA_VERSION, HumanFrame, ServiceStatus, peek_header
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.soak")
 PIPELINE = ("retarget", "solver", "sim")
 
 
-# --------------------------------------------------------------------------- processes
-
-
-class LocalStack:
-    """The compose services as local processes on one loopback router, each killable alone.
-
-    Args:
-        session: bus session name.
-        endpoint: router endpoint, e.g. ``tcp/127.0.0.1:7447``.
-        env: variables for the compose interpolation (e.g. ``{"SOLVER": "wqp"}``).
-        status_period: ServiceStatus period of every service [s].
-    """
-
-    def __init__(self, session: str, endpoint: str, env: dict[str, str] | None = None, status_period: float = 0.5):
-        self.session = session
-        self.endpoint = endpoint
-        self.status_period = status_period
-        self.spec = load_stack(env={"MIMIC_SESSION": session, **(env or {})})
-        forget_state(self.spec.values(), Path.cwd())
-        self.log = io.StringIO()  # every child's prefixed output, for failure messages
-        self.sup = Supervisor(out=self.log)
-        self.argv: dict[str, list[str]] = {}
-        self.env: dict[str, dict[str, str]] = {}
-
-    def command(self, name: str, extra: list[str] | None = None) -> tuple[list[str], dict[str, str]]:
-        """argv and environment of compose service ``name`` on this router and session."""
-        spec = self.spec[name]
-        argv = [sys.executable, "-m", "services.cli", *spec.command[1:], *(extra or [])]
-        if name != "zenoh":
-            argv += ["--status-period", str(self.status_period)]
-        env = local_environment(spec, self.endpoint, self.session)
-        return argv, env
-
-    def start(
-        self, name: str, extra: list[str] | None = None, argv: list[str] | None = None, env: dict | None = None
-    ) -> float:
-        """Start a service; again with no arguments: the same command. Returns the monotonic start time [s].
-
-        ``name`` is a compose service unless ``argv`` (a full command line) is given.
-        """
-        if argv is None:
-            if name in self.argv and extra is None:
-                argv, env = self.argv[name], self.env[name]
-            else:
-                argv, env = self.command(name, extra)
-        env = env if env is not None else {"MIMIC_SESSION": self.session, "MIMIC_CONNECT": self.endpoint}
-        self.argv[name], self.env[name] = argv, env
-        t = time.monotonic()
-        self.sup.start(name, argv, env)
-        return t
-
-    def start_all(self, names: list[str], extra: dict[str, list[str]] | None = None) -> None:
-        """Router first (waits until it accepts connections), then the named services."""
-        self.start("zenoh")
-        if not wait_for_endpoint(self.endpoint, 20.0):
-            raise RuntimeError(f"router not listening on {self.endpoint}:\n{self.output()}")
-        for n in names:
-            self.start(n, (extra or {}).get(n))
-
-    def pid(self, name: str) -> int | None:
-        c = self.sup.children.get(name)
-        return c.proc.pid if c is not None and c.proc is not None else None
-
-    def pids(self) -> dict[str, int]:
-        return {n: p for n in self.sup.children if (p := self.pid(n)) is not None}
-
-    def kill9(self, name: str) -> int:
-        """SIGKILL the service (no clean-up runs in it). Returns its pid."""
-        child = self.sup.children[name]
-        pid = child.proc.pid
-        os.kill(pid, signal.SIGKILL)
-        child.proc.wait(5)
-        child.proc = None
-        return pid
-
-    def running(self, name: str) -> bool:
-        return self.sup.alive(name)
-
-    def output(self, tail: int = 6000) -> str:
-        return self.log.getvalue()[-tail:]
-
-    def close(self) -> None:
-        order = [n for n in reversed(self.sup.children) if n != "zenoh"] + ["zenoh"]
-        for n in order:
-            if n in self.sup.children:
-                self.sup.stop(n, timeout=5.0)
-        forget_state(self.spec.values(), Path.cwd())  # throw-away sessions leave no state behind
-
-    def __enter__(self) -> LocalStack:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
 # --------------------------------------------------------------------------- observation
 
 
-@dataclass
-class StateSample:
-    """One received RobotState (arrays copied)."""
+class _Arrivals:
+    """First RobotState arrival [ns wall clock] per ``seq`` and every service's last status."""
 
-    t: float  # monotonic arrival [s]
-    t_ns: int  # wall-clock arrival [ns]
-    seq: int
-    t0: int
-    q: np.ndarray
-    holding: bool
-    solver_id: str
-    sim_time: float
-
-
-@dataclass
-class CommandSample:
-    t: float
-    seq: int
-    solver_id: str
-    q: np.ndarray
-    qd: np.ndarray
-    status: str
-    reason: str
-
-
-@dataclass
-class Observer:
-    """A bus session that records what the stack publishes: states, commands, status, liveliness."""
-
-    endpoint: str
-    session: str
-    keep_commands: bool = True
-    states: list[StateSample] = field(default_factory=list)
-    commands: list[CommandSample] = field(default_factory=list)
-    status: dict[str, ServiceStatus] = field(default_factory=dict)
-    status_times: dict[str, list[float]] = field(default_factory=dict)
-    alive_events: list[tuple[float, str, str]] = field(default_factory=list)  # (t, "PUT"/"DELETE", "svc/inst")
-    first_state_ns: dict[int, int] = field(default_factory=dict)  # seq -> first arrival wall clock [ns]
-
-    def __post_init__(self) -> None:
-        self.keys = Keys(self.session)
+    def __init__(self, z: zenoh.Session, keys: Keys):
         self.lock = threading.Lock()
-        self.alive: set[str] = set()
-        self.z = open_session(bus_args(connect=[self.endpoint], session=self.session))
+        self.first_state_ns: dict[int, int] = {}
+        self.status: dict[str, ServiceStatus] = {}
         self._subs = [
-            self.z.declare_subscriber(self.keys.sim_state, self._on_state),
-            self.z.declare_subscriber(self.keys.all_status, self._on_status),
-            self.z.liveliness().declare_subscriber(self.keys.all_alive, self._on_alive, history=True),
+            z.declare_subscriber(keys.sim_state, self._on_state),
+            z.declare_subscriber(keys.all_status, self._on_status),
         ]
-        if self.keep_commands:
-            self._subs.append(self.z.declare_subscriber(self.keys.all_commands, self._on_command))
 
     def _on_state(self, s: zenoh.Sample) -> None:
         now_ns = time.time_ns()
-        m = RobotState.decode(s.payload.to_bytes())
-        smp = StateSample(time.monotonic(), now_ns, m.hdr.seq, m.hdr.t0, m.q, m.holding, m.solver_id, m.sim_time)
-        with self.lock:
-            self.states.append(smp)
-            self.first_state_ns.setdefault(m.hdr.seq, now_ns)
-
-    def _on_command(self, s: zenoh.Sample) -> None:
-        m = JointCommand.decode(s.payload.to_bytes())
-        with self.lock:
-            self.commands.append(CommandSample(time.monotonic(), m.hdr.seq, m.solver_id, m.q, m.qd, m.status, m.reason))
+        hdr = peek_header(s.payload.to_bytes())
+        if hdr is not None:
+            with self.lock:
+                self.first_state_ns.setdefault(hdr.seq, now_ns)
 
     def _on_status(self, s: zenoh.Sample) -> None:
         st = ServiceStatus.decode(s.payload.to_bytes())
-        name = f"{st.service}/{st.instance}"
         with self.lock:
-            self.status[name] = st
-            self.status_times.setdefault(name, []).append(time.monotonic())
-
-    def _on_alive(self, s: zenoh.Sample) -> None:
-        parsed = Keys.parse_alive(str(s.key_expr))
-        if parsed is None:
-            return
-        name = "/".join(parsed)
-        kind = "DELETE" if s.kind == zenoh.SampleKind.DELETE else "PUT"
-        with self.lock:
-            self.alive_events.append((time.monotonic(), kind, name))
-            (self.alive.discard if kind == "DELETE" else self.alive.add)(name)
-
-    def wait_alive(self, names: list[str], timeout: float = 60.0, stack: LocalStack | None = None) -> None:
-        """Block until every ``service/instance`` in ``names`` holds a liveliness token."""
-        deadline = time.monotonic() + timeout
-        while not set(names) <= self.alive:
-            if time.monotonic() > deadline:
-                extra = f"\n{stack.output()}" if stack is not None else ""
-                raise TimeoutError(f"not alive after {timeout} s: {sorted(set(names) - self.alive)}{extra}")
-            time.sleep(0.05)
-
-    def wait_until(self, pred, timeout: float, what: str) -> float:
-        """Poll ``pred()`` until true; returns the monotonic time it became true."""
-        deadline = time.monotonic() + timeout
-        while True:
-            with self.lock:
-                ok = pred()
-            if ok:
-                return time.monotonic()
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{what}: not within {timeout} s")
-            time.sleep(0.01)
-
-    def states_since(self, t: float) -> list[StateSample]:
-        with self.lock:
-            return [s for s in self.states if s.t >= t]
+            self.status[f"{st.service}/{st.instance}"] = st
 
     def close(self) -> None:
         for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:  # the session may already be closing
-                pass
-        self.z.close()
+            s.undeclare()
 
 
 # --------------------------------------------------------------------------- input
@@ -421,11 +235,10 @@ def run(args: argparse.Namespace) -> dict:
     rss: dict[str, list[tuple[float, float]]] = {}
     with LocalStack(session, endpoint, env=env, status_period=1.0) as stack:
         stack.start_all(names, extra)
-        obs = Observer(endpoint, session, keep_commands=False)
+        obs = _Arrivals(stack.bus, stack.keys)
         try:
-            obs.wait_alive([f"{n}/main" for n in names], timeout=120, stack=stack)
             time.sleep(0.5)
-            pub = FramePublisher(obs.z, obs.keys, args.rate)
+            pub = FramePublisher(stack.bus, stack.keys, args.rate)
             t_start_ns = time.time_ns()
             t_start = time.monotonic()
             pub.start(args.duration)
@@ -438,8 +251,6 @@ def run(args: argparse.Namespace) -> dict:
                         if v is not None:
                             rss.setdefault(n, []).append((now - t_start, v))
                     next_sample += args.sample_period
-                    with obs.lock:
-                        obs.states.clear()  # only first arrivals are needed for the figures
                 if now - t_start > args.duration:
                     break
                 dead = [n for n in names if not stack.running(n)]

@@ -1,6 +1,6 @@
 """Ingest figures as JSON: clips loaded, parse speed, the error a broken file gives.
 
-Run: ``python -m services.ingest.bench [--mocap-dir DIR] [--repeat N]``.
+Run: ``mimic bench ingest [--mocap-dir DIR] [--repeat N]``.
 """
 
 from __future__ import annotations
@@ -87,14 +87,12 @@ def run(mocap_dir: Path, repeat: int) -> dict:
     return res
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--mocap-dir", type=Path, default=DEFAULT_MOCAP)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Flags of ``mimic bench ingest``."""
+    p.add_argument("--mocap-dir", type=Path, default=DEFAULT_MOCAP, help="real clips (bvh/, c3d/)")
     p.add_argument("--repeat", type=int, default=3, help="loads per file (median time)")
-    a = p.parse_args(argv)
-    emit_json(run(a.mocap_dir, a.repeat))
+
+
+def main(args: argparse.Namespace) -> int:
+    emit_json(run(args.mocap_dir, args.repeat))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

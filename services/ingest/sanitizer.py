@@ -14,20 +14,18 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 
-import msgpack
 import numpy as np
 
 from shared.messages import (
     HUMAN_BONES,
-    MAX_ITEMS,
-    MAX_PAYLOAD_BYTES,
-    SCHEMA_VERSION,
     Bone,
     Header,
     HumanFrame,
     MessageError,
     Pose,
+    unpack_message,
 )
+from shared.sequence import SequenceGuard
 
 _IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -65,18 +63,7 @@ def decode_lenient(payload: bytes) -> tuple[HumanFrame, list[Issue]]:
     Raises:
         MessageError: unreadable payload (not msgpack, wrong version/type, no header or root).
     """
-    if len(payload) > MAX_PAYLOAD_BYTES:
-        raise MessageError("size", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-    try:
-        d = msgpack.unpackb(bytes(payload), raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-    except Exception as exc:
-        raise MessageError("msgpack", f"not valid msgpack ({type(exc).__name__})") from None
-    if not isinstance(d, dict):
-        raise MessageError("type", "payload is not a map")
-    if d.get("v") != SCHEMA_VERSION:
-        raise MessageError("version", f"schema version {d.get('v')!r}, this build speaks {SCHEMA_VERSION}")
-    if d.get("t") != HumanFrame.TYPE:
-        raise MessageError("type", f"message type {d.get('t')!r}, expected 'HumanFrame'")
+    d = unpack_message(payload, HumanFrame.TYPE)  # the bus limits, version and type: as the strict decoder
     hdr = d.get("hdr")
     if not (isinstance(hdr, (list, tuple)) and len(hdr) == 3):
         raise MessageError("missing", "hdr must be [seq, stamp, t0]")
@@ -120,10 +107,12 @@ class FrameSanitizer:
     """Repair or drop live HumanFrames.
 
     Rules:
-        * ``seq`` equal to the last accepted one -> dropped ("duplicate_seq");
-          lower -> dropped ("out_of_order"), unless it is more than
-          ``reset_gap`` lower, which is taken as a restarted source ("seq_reset").
-        * non-finite ``stamp`` or root position -> dropped ("nan_root").
+        * order (:class:`shared.sequence.SequenceGuard`, the rule retarget applies too):
+          ``seq`` equal to the last accepted one -> dropped ("duplicate_seq"); lower ->
+          dropped ("seq_backwards"), a stamp not after the last -> dropped ("time_backwards"),
+          unless it is more than ``reset_gap`` lower or ``resync_after`` frames in a row were
+          out of order, which is taken as a restarted source ("seq_reset", repaired).
+        * non-finite ``stamp`` or root position -> dropped ("nan_root"), before the order check.
         * quaternion norm within ``quat_repair_tol`` of 1 -> normalised
           ("quat_normalised"); further off (or NaN) -> root: dropped
           ("bad_root_quaternion"); bone: flagged invalid ("bad_quaternion").
@@ -136,18 +125,22 @@ class FrameSanitizer:
     Attributes:
         quat_repair_tol: largest | |q| - 1 | repaired by normalisation.
         max_bone_distance: [m] from the pelvis origin.
-        reset_gap: seq jump back treated as a source restart.
+        reset_gap: seq jump back treated as a source restart at once.
+        resync_after: consecutive out-of-order frames treated as a source restart.
         counts: (reason, action) -> count over the sanitizer's life.
     """
 
     quat_repair_tol: float = 0.1
     max_bone_distance: float = 3.0
     reset_gap: int = 1000
+    resync_after: int = 30
     counts: Counter = field(default_factory=Counter)
-    last_seq: int | None = None
     _last_p: dict[str, np.ndarray] = field(default_factory=dict)
     _last_q: dict[str, np.ndarray] = field(default_factory=dict)
     _seen: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        self._guard = SequenceGuard(self.reset_gap, self.resync_after)
 
     def _quat(self, q: np.ndarray) -> tuple[np.ndarray | None, bool]:
         """(unit quaternion or None if beyond repair, was_repaired)."""
@@ -178,17 +171,15 @@ class FrameSanitizer:
 
     def _step(self, f: HumanFrame, out: list[Issue]) -> HumanFrame | None:
         seq = f.hdr.seq
-        if self.last_seq is not None and seq <= self.last_seq:
-            if seq == self.last_seq:
-                out.append(Issue("duplicate_seq", "dropped", f"seq {seq} repeated"))
-                return None
-            if self.last_seq - seq <= self.reset_gap:
-                out.append(Issue("out_of_order", "dropped", f"seq {seq} after {self.last_seq}"))
-                return None
-            out.append(Issue("seq_reset", "repaired", f"seq jumped back {self.last_seq} -> {seq}: source restarted"))
         if not math.isfinite(f.hdr.stamp) or not np.all(np.isfinite(f.root.p)):
             out.append(Issue("nan_root", "dropped", f"seq {seq}: non-finite stamp or root position"))
             return None
+        verdict = self._guard.check(f.hdr, f.source)
+        if not verdict.ok:
+            out.append(Issue(verdict.reason, "dropped", verdict.detail))
+            return None
+        if verdict.restarted:
+            out.append(Issue("seq_reset", "repaired", verdict.detail))
         rq, fixed = self._quat(np.asarray(f.root.q, float))
         if rq is None:
             out.append(Issue("bad_root_quaternion", "dropped", f"seq {seq}: root quaternion {np.round(f.root.q, 4)}"))
@@ -224,5 +215,5 @@ class FrameSanitizer:
         if not any(b.valid for b in bones.values()):
             out.append(Issue("empty", "dropped", f"seq {seq}: no valid bone"))
             return None
-        self.last_seq = seq
+        self._guard.accept(f.hdr, f.source)
         return HumanFrame(f.hdr, f.source, Pose(np.asarray(f.root.p, float), rq), bones)

@@ -17,17 +17,15 @@ import threading
 import time
 from pathlib import Path
 
-import zenoh
-
+from services.launcher.local_stack import LocalStack
 from services.launcher.monitor import BusMonitor
-from services.launcher.stack import ROUTER_SERVICE, forget_state, load_stack, local_environment, select
-from services.launcher.supervisor import Supervisor
-from shared.bus import DEFAULT_ROUTER, wait_for_endpoint
-from shared.keys import Keys
+from services.launcher.stack import ROUTER_SERVICE, select
+from shared.bus import DEFAULT_ROUTER
 from shared.paths import REPO_ROOT
 
 log = logging.getLogger("mimic.up")
-STOP_LAST = ("logger", ROUTER_SERVICE)
+#: Stopped after the others (the logger records the stack going down).
+STOP_LAST = ("logger",)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,34 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compose", default=None, help="compose file to read (default: the repo's docker-compose.yml)")
 
 
-def _mimic_argv(command: list[str]) -> list[str]:
-    """Run ``mimic ...`` with this interpreter, so the launcher works from any venv."""
-    if command and command[0] == "mimic":
-        return [sys.executable, "-m", "services.cli", *command[1:]]
-    return command
-
-
-def _monitor_session(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    return zenoh.open(conf)
-
-
-def _expected_alive(names: list[str]) -> set[str]:
-    # Compose names map to the ServiceRunner names the processes announce.
-    alias = {"solver-shadow": "solver"}
-    return {alias.get(n, n) for n in names if n != ROUTER_SERVICE}
-
-
-def _demo_clips(repo: Path, run_dir: Path, sup: Supervisor, env: dict[str, str]) -> list[Path]:
+def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
     out = run_dir / "demo_motion"
-    child = sup.start("motion", _mimic_argv(["mimic", "demo-motion", str(out)]), env)
-    while sup.alive("motion"):
+    stack.start("motion", argv=["mimic", "demo-motion", str(out)])
+    while stack.running("motion"):
         time.sleep(0.1)
-    sup.poll()
+    stack.sup.poll()
+    child = stack.sup.children["motion"]
     code = child.exit_codes[-1] if child.exit_codes else None
     if code != 0:
         raise RuntimeError(f"demo motion generation failed (exit {code})")
@@ -85,78 +62,59 @@ def _demo_clips(repo: Path, run_dir: Path, sup: Supervisor, env: dict[str, str])
 
 
 def main(args: argparse.Namespace) -> int:
-    repo = REPO_ROOT
     session = args.session or ("demo" if args.demo else os.environ.get("MIMIC_SESSION", "default"))
-    env = dict(os.environ, MIMIC_SESSION=session)
-    compose = Path(args.compose) if args.compose else None
-    stack = load_stack(compose, env) if compose else load_stack(env=env)
-    specs = select(stack, args.profile, args.only)
-    run_dir = repo / "runs"
+    run_dir = REPO_ROOT / "runs"
     run_dir.mkdir(exist_ok=True)
-    keys = Keys(session)
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
-    sup = Supervisor(cwd=str(repo))
-    base_env = {"MIMIC_SESSION": session, "MIMIC_CONNECT": args.endpoint}
-    monitor = session_z = None
+    stack = LocalStack(
+        session,
+        args.endpoint,
+        out=sys.stdout,
+        restart=args.restart,
+        compose=Path(args.compose) if args.compose else None,
+    )
+    specs = select(stack.spec, args.profile, args.only)
+    names = [s.name for s in specs if s.name != ROUTER_SERVICE]
+    monitor = None
     code = 0
     try:
-        for path in forget_state(specs, repo):
-            log.info("new stack: removed the previous service state %s", path)
-        for spec in specs:
-            sup.start(
-                spec.name, _mimic_argv(spec.command), local_environment(spec, args.endpoint), restart=args.restart
-            )
-            if spec.name == ROUTER_SERVICE and not wait_for_endpoint(args.endpoint, 15.0):
-                raise RuntimeError(f"router did not open {args.endpoint}")
-        session_z = _monitor_session(args.endpoint)
-        monitor = BusMonitor(session_z, keys, *_joint_limits())
-        expected = _expected_alive([s.name for s in specs])
-        deadline = time.monotonic() + args.ready_timeout
-        while not expected <= monitor.alive_services():
-            crashed = [n for n in sup.poll() if not args.restart]
-            if crashed:
-                raise RuntimeError(f"services exited during start-up: {crashed} (see their log lines above)")
-            if stop.is_set() or time.monotonic() > deadline:
-                missing = sorted(expected - monitor.alive_services())
-                raise RuntimeError(f"services not up after {args.ready_timeout:.0f} s: {missing}")
-            time.sleep(0.1)
+        stack.start_router()
+        monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
+        stack.start_all(names, timeout=args.ready_timeout, stop=stop)
         log.info("stack up on session %r: %s", session, ", ".join(s.name for s in specs))
 
         if args.demo:
-            clips = [Path(c) for c in args.clips] if args.clips else _demo_clips(repo, run_dir, sup, base_env)
+            clips = [Path(c) for c in args.clips] if args.clips else _demo_clips(run_dir, stack)
             for clip in clips:
                 if stop.is_set():
                     break
                 name = f"play:{clip.stem}"[:24]
-                argv = ["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"]
-                sup.start(name, _mimic_argv(argv), base_env)
-                while sup.alive(name) and not stop.is_set():
-                    sup.poll()
+                stack.start(
+                    name, argv=["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"]
+                )
+                while stack.running(name) and not stop.is_set():
+                    stack.sup.poll()
                     time.sleep(0.05)
-                sup.poll()
+                stack.sup.poll()
             time.sleep(1.5)  # let the last frames drain through solver, sim and logger
         else:
             t_end = time.monotonic() + args.duration if args.duration else None
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
-                sup.poll()
+                stack.sup.poll()
                 time.sleep(0.1)
     except RuntimeError as exc:
         log.error("%s", exc)
         code = 1
     finally:
-        order = [n for n in reversed(list(sup.children)) if n not in STOP_LAST]
-        order += [n for n in STOP_LAST if n in sup.children]
-        codes = sup.stop_all(order)
-        forget_state(specs, repo)  # the stack's state lives as long as the stack
-        summary = monitor.summary() if monitor else {}
+        codes = stack.stop(last=STOP_LAST)
+        summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
             monitor.close()
-        if session_z is not None:
-            session_z.close()
+        stack.close()
         summary["exit_codes"] = codes
         summary["session"] = session
         rrd = run_dir / f"{session}.rrd"
@@ -187,6 +145,8 @@ def _print_summary(s: dict, path: Path) -> None:
     lines.append(f"{'service':<22}{'in':>8}{'out':>8}{'dropped':>9}{'rejected':>10}  state")
     for name, c in s.get("services", {}).items():
         lines.append(f"{name:<22}{c['in']:>8}{c['out']:>8}{c['dropped']:>9}{c['rejected']:>10}  {c['state']}")
+        if c.get("outcomes"):
+            lines.append(f"{'':<22}outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(c["outcomes"].items())))
     lat = s.get("latency_ms", {})
 
     def f(v, unit=""):

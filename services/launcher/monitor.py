@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict
 
 import numpy as np
 import zenoh
 
 from shared.keys import Keys
 from shared.messages import JointCommand, MessageError, RobotState, ServiceStatus, TaskTargets
+from shared.scoring import TargetScorer
 
 
 def _pct(values: list[float], q: float) -> float | None:
@@ -36,10 +36,7 @@ class StackMonitor:
     def __init__(self, max_pending: int = 4096):
         self.status: dict[tuple[str, str], ServiceStatus] = {}
         self.frames_seen = 0
-        self._targets: OrderedDict[int, TaskTargets] = OrderedDict()
-        self._max_pending = max_pending
-        self._last_t0 = 0
-        self._last_state: RobotState | None = None
+        self.scorer = TargetScorer(max_pending)
         self.max_command_excess = 0.0
         self.latency_ms: list[float] = []
         self.wrist_err: list[float] = []
@@ -54,10 +51,7 @@ class StackMonitor:
         self.frames_seen += 1
 
     def on_targets(self, tt: TaskTargets) -> None:
-        # Keyed by t0 (ns the frame entered the bus): unique even when a new clip restarts seq.
-        self._targets[tt.hdr.t0] = tt
-        while len(self._targets) > self._max_pending:
-            self._targets.popitem(last=False)
+        self.scorer.add_targets(tt)
 
     def on_command(self, cmd: JointCommand, lower: np.ndarray | None, upper: np.ndarray | None) -> None:
         if lower is not None and upper is not None and len(cmd.q) == len(lower):
@@ -71,34 +65,18 @@ class StackMonitor:
         if lower is not None and upper is not None and len(st.q) == len(lower):
             excess = float(np.max(np.maximum(st.q - upper, lower - st.q)))
             self.max_joint_excess = max(self.max_joint_excess, excess)
-        t0 = st.hdr.t0
-        if t0 <= 0 or t0 < self._last_t0:
-            return  # no frame behind it yet (solver still initialising), or an older frame
-        if t0 > self._last_t0:
-            # First state reflecting a new frame: that is the end-to-end latency; the previous
-            # frame's last state is how close the robot got to it.
-            self._score_last()
-            self._last_t0 = t0
-            self.latency_ms.append((now_ns - t0) / 1e6)
-        self._last_state = st
+        new_frame, errors = self.scorer.add_state(st)
+        if new_frame:
+            # First state reflecting a new frame: that is the end-to-end latency.
+            self.latency_ms.append((now_ns - st.hdr.t0) / 1e6)
+        self._add_errors(errors)
 
-    def _score_last(self) -> None:
-        st = self._last_state
-        if st is None:
-            return
-        tt = self._targets.get(st.hdr.t0)
-        if tt is None:
-            return
-        for name, pose in st.frames.items():
-            tgt = tt.targets.get(name)
-            if tgt is None or not tgt.valid:
-                continue
-            err = float(np.linalg.norm(pose.p - tgt.p))
+    def _add_errors(self, errors: dict[str, float] | None) -> None:
+        for name, err in (errors or {}).items():
             (self.wrist_err if name.endswith("wrist") else self.elbow_err).append(err)
 
     def summary(self) -> dict:
-        self._score_last()
-        self._last_state = None
+        self._add_errors(self.scorer.flush())
         services = {}
         for (svc, inst), st in sorted(self.status.items()):
             c = st.counts
@@ -110,6 +88,7 @@ class StackMonitor:
                 "state": st.state,
                 "last_error": st.last_error,
                 "counts": dict(c),
+                "outcomes": dict(st.outcomes),
             }
 
         def stats(v: list[float]) -> dict:

@@ -1,4 +1,4 @@
-"""``mimic log-bench``: how many bus messages per second the logger's core can take.
+"""``mimic bench logger``: how many bus messages per second the logger's core can take.
 
 Builds the message mix of a running stack for ``--frames`` mocap frames at
 ``--source-rate`` (per frame: one HumanFrame, one TaskTargets, one JointCommand per

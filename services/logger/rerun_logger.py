@@ -13,7 +13,7 @@ frame, x forward, y left, z up):
   by the commanded and by the simulated joints (meshes logged once, placements at
   ``robot_rate`` Hz of source time); ``world/robot/achieved``: achieved wrists/elbows;
 * ``metrics/error_cm`` (one series per target): achieved position of the sim's last
-  state on a frame vs the target of the same ``seq`` [cm];
+  state on a frame vs the targets of the same frame (``hdr.t0``) [cm];
   ``metrics/residual/<solver>/level<k>``, ``metrics/solve_ms/<solver>``,
   ``metrics/latency_ms/<stream>`` (receive time - ``hdr.t0``),
   ``metrics/drops/<service>`` (from ServiceStatus), ``metrics/logger/skipped``.
@@ -26,17 +26,14 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import OrderedDict
 from collections.abc import Iterable
 
-import msgpack
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from services.logger.robot_visual import RobotVisual
 from shared.messages import (
-    MAX_ITEMS,
     MESSAGE_TYPES,
     HumanFrame,
     JointCommand,
@@ -44,9 +41,11 @@ from shared.messages import (
     RobotState,
     ServiceStatus,
     TaskTargets,
+    peek,
     peek_type,
 )
 from shared.rotations import quat_xyzw
+from shared.scoring import TargetScorer
 from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.log")
@@ -118,7 +117,7 @@ class RerunLogger:
         self.follow = follow
         self.counts: dict[str, int] = {}
         self.rejects: dict[str, int] = {}
-        self._targets: OrderedDict[int, TaskTargets] = OrderedDict()
+        self._scorer = TargetScorer(512)
         self._last_state_key: tuple[int, bool] | None = None
         self._last_state_payload: bytes | None = None
         self._holding: bool | None = None
@@ -172,16 +171,17 @@ class RerunLogger:
         if kind not in ("HumanFrame", "RobotState", "JointCommand"):
             return False
         try:
-            d = msgpack.unpackb(payload, raw=False, max_array_len=MAX_ITEMS * 4, max_map_len=MAX_ITEMS)
-            seq, stamp = int(d["hdr"][0]), float(d["hdr"][1])
+            d = peek(payload)
+            seq, stamp, t0 = int(d["hdr"][0]), float(d["hdr"][1]), int(d["hdr"][2])
             sid = str(d.get("id", ""))
         except Exception:
             return False  # let the full decode say what is wrong
         if kind == "RobotState":
             # The sim publishes faster than commands arrive: one row per applied command for
-            # the visuals and latency; the error waits for the last state of each seq.
-            key = (seq, bool(d.get("hold", False)))
-            if self._last_state_key is not None and seq != self._last_state_key[0]:
+            # the visuals and latency; the error waits for the last state of each frame (t0:
+            # unlike seq, it does not start again with a new clip).
+            key = (t0, bool(d.get("hold", False)))
+            if self._last_state_key is not None and t0 != self._last_state_key[0]:
                 self.flush_error()
             self._last_state_payload = payload
             if key == self._last_state_key:
@@ -207,7 +207,7 @@ class RerunLogger:
 
         Returns:
             The message type logged, or None if rejected or decimated (both counted): a
-            RobotState repeating the last one's ``seq`` and holding flag, a JointCommand
+            RobotState repeating the last one's frame (``t0``) and holding flag, a JointCommand
             repeating its solver's last ``seq``, or a HumanFrame within ``skeleton_rate``.
         """
         if not self._setup_done:
@@ -240,9 +240,9 @@ class RerunLogger:
         return kind
 
     def flush_error(self) -> None:
-        """Log the wrist/elbow error of the newest RobotState against the targets of its seq.
+        """Log the wrist/elbow error of the newest RobotState against the targets of its frame.
 
-        Called when the sim moves on to the next seq (and once at the end): the error is
+        Called when the sim moves on to the next frame (and once at the end): the error is
         that of the robot's last state on a frame, i.e. how close it got before the next
         frame, not of the instant the command arrived.
         """
@@ -253,15 +253,11 @@ class RerunLogger:
             msg = RobotState.decode(payload)
         except MessageError:
             return  # already counted when it was first seen
-        targets = self._targets.get(msg.hdr.seq)
-        if targets is None:
+        errors = self._scorer.errors(msg)
+        if errors is None:
             return
         # One row, one series per target (NaN where the target is missing or invalid).
-        err = np.full(len(TARGET_NAMES), np.nan)
-        for i, name in enumerate(TARGET_NAMES):
-            t, pose = targets.targets.get(name), msg.frames.get(name)
-            if t is not None and t.valid and pose is not None:
-                err[i] = float(np.linalg.norm(pose.p - t.p)) * 100.0
+        err = np.array([100.0 * errors.get(name, np.nan) for name in TARGET_NAMES])
         self._set_time(msg.hdr.seq, msg.hdr.stamp)
         self.rec.log("metrics/error_cm", rr.Scalars(err))
 
@@ -329,9 +325,7 @@ class RerunLogger:
 
     def _targets_msg(self, msg: TaskTargets, recv_ns: int) -> None:
         self._set_time(msg.hdr.seq, msg.hdr.stamp)
-        self._targets[msg.hdr.seq] = msg
-        while len(self._targets) > 512:
-            self._targets.popitem(last=False)
+        self._scorer.add_targets(msg)
         for w in WRISTS:
             t = msg.targets.get(w)
             if t is not None and t.valid:

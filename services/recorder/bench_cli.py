@@ -1,4 +1,4 @@
-"""``mimic record-bench``: does the recorder lose messages at rate R for D seconds?
+"""``mimic bench recorder``: does the recorder lose messages at rate R for D seconds?
 
 Starts a router and a ``mimic record`` process on loopback, publishes
 ``rate * duration`` HumanFrames (seq 0..N-1) at ``rate`` Hz against absolute
@@ -12,10 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
-import signal
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -24,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from services.launcher.supervisor import rss_mb, stop_processes
+from services.launcher.local_stack import LocalStack
+from services.launcher.supervisor import rss_mb
 from services.recorder.mcap_io import read_recording
-from shared.bus import bus_args, free_port, open_session
+from shared.bus import free_port
 from shared.keys import Keys
 from shared.messages import HUMAN_BONES, Bone, Header, HumanFrame, Pose, ServiceStatus
 from shared.report import emit_json
@@ -69,58 +66,56 @@ def wait_recording(session: zenoh.Session, keys: Keys, timeout: float = 20.0) ->
     return ok
 
 
+def _final_counts(output: str) -> dict:
+    """The recorder's last JSON line (its final counts) from the stack's prefixed output."""
+    for line in reversed(output.splitlines()):
+        body = line.split(" | ", 1)[-1].strip()
+        if body.startswith("{"):
+            return json.loads(body)
+    return {}
+
+
 def run_bench(
     rate: float, duration: float, out: Path, port: int = 0, session: str = "recbench", rss_period: float = 1.0
 ) -> dict:
-    """Router + recorder processes, publish, stop, count. Returns the report dict."""
+    """Router + recorder processes (a :class:`LocalStack`), publish, stop, count. Returns the report dict."""
     endpoint = f"tcp/127.0.0.1:{port or free_port()}"
-    cli = [sys.executable, "-m", "services.cli"]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    keys = Keys(session)
     n_total = round(rate * duration)
-    router = subprocess.Popen([*cli, "router", "--listen", endpoint], env=env, stdout=subprocess.DEVNULL)
-    recorder = None
     rss: list[tuple[float, float]] = []
-    try:
-        time.sleep(0.8)
-        recorder = subprocess.Popen(
-            [*cli, "record", "--connect", endpoint, "--session", session, "--out", str(out), "--status-period", "0.2"],
-            env=env,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        with open_session(bus_args(connect=[endpoint], session=session)) as z:
-            if not wait_recording(z, keys):
-                raise RuntimeError("recorder did not come up within 20 s")
-            time.sleep(0.5)
-            pub = z.declare_publisher(keys.mocap_frame, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
-            payloads = [make_frame(i, rate).encode() for i in range(min(n_total, 1000))]
-            t_start = time.monotonic()
-            next_rss = t_start
-            late_max = 0.0
-            for i in range(n_total):
-                due = t_start + i / rate
-                now = time.monotonic()
-                if due > now:
-                    time.sleep(due - now)
-                else:
-                    late_max = max(late_max, now - due)
-                # Re-encode only the header: building 600k frames up front would dominate the bench.
-                frame = make_frame(i, rate).encode() if i >= len(payloads) else payloads[i]
-                pub.put(frame)
-                if now >= next_rss:
-                    r = rss_mb(recorder.pid)
-                    if r is not None:
-                        rss.append((round(now - t_start, 2), round(r, 2)))
-                    next_rss += rss_period
-            publish_s = time.monotonic() - t_start
-            time.sleep(1.0)  # let the last samples cross the router
-            pub.undeclare()
-        recorder.send_signal(signal.SIGINT)
-        stdout, _ = recorder.communicate(timeout=60)
-        final = json.loads(stdout.strip().splitlines()[-1]) if stdout.strip() else {}
-    finally:
-        stop_processes(recorder, router)
+    with LocalStack(session, endpoint) as stack:
+        keys = stack.keys
+        stack.start_router()
+        stack.start("recorder", argv=["mimic", "record", "--out", str(out), "--status-period", "0.2"])
+        z = stack.bus
+        if not wait_recording(z, keys):
+            raise RuntimeError(f"recorder did not come up within 20 s\n{stack.output()}")
+        time.sleep(0.5)
+        pub = z.declare_publisher(keys.mocap_frame, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+        payloads = [make_frame(i, rate).encode() for i in range(min(n_total, 1000))]
+        recorder_pid = stack.pid("recorder")
+        t_start = time.monotonic()
+        next_rss = t_start
+        late_max = 0.0
+        for i in range(n_total):
+            due = t_start + i / rate
+            now = time.monotonic()
+            if due > now:
+                time.sleep(due - now)
+            else:
+                late_max = max(late_max, now - due)
+            # Re-encode only the header: building 600k frames up front would dominate the bench.
+            frame = make_frame(i, rate).encode() if i >= len(payloads) else payloads[i]
+            pub.put(frame)
+            if now >= next_rss:
+                r = rss_mb(recorder_pid)
+                if r is not None:
+                    rss.append((round(now - t_start, 2), round(r, 2)))
+                next_rss += rss_period
+        publish_s = time.monotonic() - t_start
+        time.sleep(1.0)  # let the last samples cross the router
+        pub.undeclare()
+        stack.sup.stop("recorder", timeout=60)  # SIGTERM: it closes the file and prints its counts
+        final = _final_counts(stack.output(tail=None))
     recording = read_recording(out)
     seqs = []
     for rec in recording:

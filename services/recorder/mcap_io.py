@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
-import msgpack
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
+
+from shared.messages import peek
 
 ENCODING = "msgpack"
 #: First bytes of every MCAP file (MCAP spec, version 0).
@@ -42,11 +43,8 @@ def payload_info(payload: bytes) -> tuple[str, int | None]:
 
     Returns ``("", None)`` for payloads that are not mimic messages; never raises.
     """
-    try:
-        d = msgpack.unpackb(payload, raw=False, max_array_len=1024, max_map_len=256, max_str_len=4096, max_bin_len=0)
-    except Exception:
-        return "", None
-    if not isinstance(d, dict):
+    d = peek(payload)
+    if d is None:
         return "", None
     t = d.get("t")
     hdr = d.get("hdr")

@@ -1,6 +1,6 @@
 """Retargeting figures over recorded clips, printed as JSON.
 
-``python -m services.retarget.bench [CLIP ...] [--modes paper bounded incremental]``
+``mimic bench retarget [CLIP ...] [--modes paper bounded incremental]``
 (default: every ``.bvh`` in ``$MIMIC_MOCAP_DIR/bvh`` or ``../shared/data/mocap/bvh``).
 Each clip is calibrated the way the live service does it (anthropometric, first frame)
 and retargeted frame by frame; reported per mode: frames, targets outside the robot
@@ -10,7 +10,6 @@ box, frames where the bounded clamp acted, and ``Retargeter.step`` time percenti
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -57,18 +56,16 @@ def evaluate(paths: list[Path], modes: tuple[str, ...]) -> dict:
     return report
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("clips", nargs="*", type=Path)
-    p.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
-    args = p.parse_args(argv)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Flags of ``mimic bench retarget``."""
+    p.add_argument("clips", nargs="*", type=Path, help="clips (default: every BVH of the real set)")
+    p.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES), help="mapping modes")
+
+
+def main(args: argparse.Namespace) -> int:
     paths = args.clips or sorted((DEFAULT_DIR / "bvh").glob("*.bvh"))
     if not paths:
         emit_json({"error": f"no clips given and none in {DEFAULT_DIR / 'bvh'}"})
         return 2
     emit_json(evaluate(paths, tuple(args.modes)))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,8 @@
 """``mimic retarget``: HumanFrames -> wrist/elbow TaskTargets on the bus (seed 000 eqs. 1-4).
 
-The mapping mode flag is ``--mapping`` because ``--mode`` is the Zenoh mode shared by
-every service (:func:`shared.bus.add_bus_args`).
+The retargeting flags are built from :class:`~services.retarget.retargeter.RetargetConfig`
+(defaults, units, validation). The mapping mode flag is ``--mapping`` because ``--mode``
+is the Zenoh mode shared by every service (:func:`shared.bus.add_bus_args`).
 """
 
 from __future__ import annotations
@@ -11,9 +12,10 @@ import logging
 from pathlib import Path
 
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
-from services.retarget.workspace import DEFAULT_SAMPLES, Shrink
+from services.retarget.workspace import Shrink
+from shared import config as shared_config
 from shared.bus import add_bus_args
-from shared.robot.profile import DEFAULT_PROFILE
+from shared.config import add_dataclass_arguments
 
 log = logging.getLogger("mimic.retarget")
 
@@ -25,59 +27,48 @@ def _shrink_arg(text: str) -> Shrink:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def add_retarget_options(p: argparse.ArgumentParser) -> None:
-    """Options shared by ``retarget`` and ``retarget-plot``."""
-    g = p.add_argument_group("retargeting")
-    g.add_argument("--mapping", choices=MODES, default="bounded", help="position mapping mode (default bounded)")
-    g.add_argument("--robot", default=DEFAULT_PROFILE, help="robot profile name or TOML path")
-    g.add_argument("--calibration", type=Path, default=None, help="operator calibration file (JSON or TOML)")
-    g.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help="Monte Carlo workspace samples")
-    g.add_argument("--seed", type=int, default=0, help="workspace sampling seed")
-    g.add_argument(
-        "--shrink",
-        type=_shrink_arg,
-        default=Shrink(),
-        help="workspace restriction: '0.05' = 5-95%% percentile box (default), '0.03m' = raw box minus 3 cm, "
+#: Flag names that differ from the RetargetConfig field names, choices and parsers.
+FLAGS = {
+    # --mode is the Zenoh mode shared by every service.
+    "mode": {"flag": "--mapping", "dest": "mapping", "choices": MODES},
+    "samples": {"help": "Monte Carlo workspace samples (paper: 12 000)"},
+    "seed": {"help": "workspace sampling seed"},
+    "shrink": {
+        "type": _shrink_arg,
+        "shown_default": "0.05",
+        "help": "workspace restriction: '0.05' = 5-95% percentile box, '0.03m' = raw box minus 3 cm, "
         "'0.05,0.01m' = both",
-    )
-    g.add_argument("--with-waist", action="store_true", help="sample the waist joints too for the workspace")
-    g.add_argument("--gain", type=float, default=1.0, help="incremental mapping gain k")
-    g.add_argument("--velocity-tau", type=float, default=0.05, help="velocity low-pass time constant [s]")
-    g.add_argument("--elbow-rotation", action="store_true", help="publish elbow orientations as used (use_rotation)")
-    g.add_argument(
-        "--elbow-placement",
-        choices=ELBOW_PLACEMENTS,
-        default=ELBOW_PLACEMENTS[0],
-        help="swivel (default): elbow targets at the robot's arm lengths, reachable together with the wrist; "
+    },
+    "elbow_placement": {
+        "choices": ELBOW_PLACEMENTS,
+        "help": "swivel: elbow targets at the robot's arm lengths, reachable together with the wrist; "
         "mapped: the paper's eqs. 1-3 per axis",
-    )
-    g.add_argument(
-        "--orientation-reference",
-        choices=ORIENTATION_REFERENCES,
-        default=ORIENTATION_REFERENCES[0],
-        help="eq. 4's robot reference: forearm (default, hand relative to forearm; needs swivel), posture "
+    },
+    "orientation_reference": {
+        "choices": ORIENTATION_REFERENCES,
+        "help": "eq. 4's robot reference: forearm (hand relative to forearm; needs swivel), posture "
         "(robot posture at the calibration targets) or rest (the profile rest pose, the paper read literally)",
-    )
+    },
+    "auto_calibrate": {
+        "help": "without --calibration, wait for one on the calibration queryable instead of using the first frame"
+    },
+}
+
+
+def add_retarget_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``retarget`` and ``retarget-plot``: the RetargetConfig fields and ``--calibration``."""
+    from .retargeter import RetargetConfig
+
+    g = p.add_argument_group("retargeting (RetargetConfig)")
+    add_dataclass_arguments(g, RetargetConfig, FLAGS)
+    g.add_argument("--calibration", type=Path, default=None, help="operator calibration file (JSON or TOML)")
 
 
 def config_from_args(args: argparse.Namespace):
-    """RetargetConfig from parsed options."""
+    """RetargetConfig from parsed options (validated by RetargetConfig)."""
     from services.retarget.retargeter import RetargetConfig
 
-    return RetargetConfig(
-        mode=args.mapping,
-        robot=args.robot,
-        samples=args.samples,
-        seed=args.seed,
-        with_waist=args.with_waist,
-        shrink=args.shrink,
-        gain=args.gain,
-        velocity_tau=args.velocity_tau,
-        elbow_rotation=args.elbow_rotation,
-        elbow_placement=args.elbow_placement,
-        orientation_reference=args.orientation_reference,
-        auto_calibrate=not getattr(args, "no_auto_calibrate", False),
-    )
+    return shared_config.config_from_args(RetargetConfig, args, FLAGS)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,11 +82,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="calibration kept across restarts: loaded at start when it exists (unless --calibration), "
         "rewritten on every new calibration, so a restarted retarget does not recalibrate on a moving operator",
-    )
-    p.add_argument(
-        "--no-auto-calibrate",
-        action="store_true",
-        help="without --calibration, wait for one on the calibration queryable instead of using the first frame",
     )
     add_bus_args(p)
 

@@ -14,7 +14,6 @@ serves two queryables:
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections import deque
@@ -27,7 +26,7 @@ import numpy as np
 from services.retarget.calibration import Calibration, CalibrationError
 from services.retarget.retargeter import Retargeter
 from shared.bus import ServiceRunner
-from shared.messages import HumanFrame
+from shared.messages import HumanFrame, MessageError, parse_query
 
 #: Frames kept waiting for the worker before the oldest is skipped.
 FRAME_QUEUE = 32
@@ -35,12 +34,9 @@ FRAME_QUEUE = 32
 
 def _decode_map(payload: bytes) -> dict:
     try:
-        d = msgpack.unpackb(payload, raw=False)
-    except Exception:
-        try:
-            d = json.loads(payload.decode())
-        except (UnicodeDecodeError, json.JSONDecodeError):
-            raise CalibrationError("calibration payload is neither msgpack nor JSON") from None
+        d = parse_query(payload)
+    except MessageError as exc:
+        raise CalibrationError(f"calibration payload: {exc.detail}") from None
     if not isinstance(d, dict):
         raise CalibrationError(f"calibration payload must be a map, got {type(d).__name__}")
     return d

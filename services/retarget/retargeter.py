@@ -12,9 +12,10 @@ Per frame and per target (both wrists and elbows):
 4. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
-Frames whose ``seq`` or ``stamp`` does not increase are rejected (``step`` returns
-None and ``last_reject`` says why); after ``resync_after`` consecutive rejects the
-source is taken to have restarted (e.g. a replayed clip) and is followed again.
+Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
+ingest sanitizer's): frames whose ``seq`` or ``stamp`` does not increase are rejected
+(``step`` returns None and ``last_reject`` says why); a seq far back, or ``resync_after``
+consecutive rejects, is a restarted source (e.g. a replayed clip), followed again.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from shared.messages import Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.sequence import SequenceGuard
 from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
 
 log = logging.getLogger(__name__)
@@ -56,7 +58,7 @@ class RetargetConfig:
         samples, seed: Monte Carlo workspace sampling (paper: 12 000 samples).
         with_waist: sample the waist joints too (default: arms only, waist at rest).
         shrink: workspace restriction (default 5-95 % percentile box).
-        gain: incremental mapping gain k [-].
+        incremental_scale: scale k [-] of the incremental mapping U += k dH (a ratio, not a gain [1/s]).
         velocity_tau: velocity low-pass time constant [s] (0 = raw differences).
         max_gap: frame gap [s] above which velocities restart from zero.
         elbow_rotation: publish elbow orientations with use_rotation=True.
@@ -89,7 +91,7 @@ class RetargetConfig:
     seed: int = 0
     with_waist: bool = False
     shrink: Shrink = field(default_factory=Shrink)
-    gain: float = 1.0
+    incremental_scale: float = 1.0
     velocity_tau: float = 0.05
     max_gap: float = 0.5
     elbow_rotation: bool = False
@@ -108,8 +110,8 @@ class RetargetConfig:
             )
         if self.mode not in MODES:
             raise ValueError(f"retarget mode {self.mode!r}; known: {list(MODES)}")
-        if not self.gain > 0:
-            raise ValueError(f"incremental gain {self.gain} must be > 0")
+        if not self.incremental_scale > 0:
+            raise ValueError(f"incremental_scale {self.incremental_scale} must be > 0")
         if self.resync_after < 1:
             raise ValueError(f"resync_after {self.resync_after} must be >= 1")
 
@@ -173,10 +175,8 @@ class Retargeter:
 
     def _reset_stream(self) -> None:
         """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
-        self._last_seq: int | None = None
-        self._last_stamp: float | None = None
+        self._guard = SequenceGuard(resync_after=self.config.resync_after)
         self._source: str | None = None
-        self._bad_in_row = 0
         self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
@@ -195,7 +195,10 @@ class Retargeter:
         for t in TARGET_NAMES:
             if self.config.mode == "incremental":
                 self._pos_map[t] = IncrementalMap(
-                    np.clip(self.robot_rest[t][0], ws.lower[t], ws.upper[t]), self.config.gain, ws.lower[t], ws.upper[t]
+                    np.clip(self.robot_rest[t][0], ws.lower[t], ws.upper[t]),
+                    self.config.incremental_scale,
+                    ws.lower[t],
+                    ws.upper[t],
                 )
             else:
                 self._pos_map[t] = AbsoluteMap.build(
@@ -227,29 +230,16 @@ class Retargeter:
         self.rejects[reason] += 1
         self.last_reject = (reason, detail)
 
-    def _check_order(self, hdr: Header) -> bool:
-        if self._last_seq is None:
-            return True
-        reason = None
-        if hdr.seq == self._last_seq:
-            reason, detail = "duplicate_seq", f"seq {hdr.seq} repeated"
-        elif hdr.seq < self._last_seq:
-            reason, detail = "seq_backwards", f"seq {hdr.seq} after {self._last_seq}"
-        elif hdr.stamp <= self._last_stamp:
-            reason, detail = "time_backwards", f"stamp {hdr.stamp:.6f} s not after {self._last_stamp:.6f} s"
-        if reason is None:
-            self._bad_in_row = 0
-            return True
-        self._bad_in_row += 1
-        if self._bad_in_row >= self.config.resync_after:
-            log.warning(
-                "source restarted (%d frames out of order, last: %s); resynchronising", self._bad_in_row, detail
-            )
+    def _check_order(self, hdr: Header, source: str) -> bool:
+        verdict = self._guard.check(hdr, source)
+        if verdict.restarted:
+            log.warning("%s; resynchronising", verdict.detail)
             self.counts["resync"] += 1
             self._reset_stream()
-            return True
-        self._reject(reason, detail)
-        return False
+            self._source = source
+        elif not verdict.ok:
+            self._reject(verdict.reason, verdict.detail)
+        return verdict.ok
 
     def step(self, frame: HumanFrame) -> TaskTargets | None:
         """Retarget one frame.
@@ -266,10 +256,11 @@ class Retargeter:
             self.counts["new_source"] += 1
             self._reset_stream()
         self._source = frame.source
-        if not self._check_order(hdr):
+        if not self._check_order(hdr, frame.source):
             return None
-        dt = None if self._last_stamp is None else hdr.stamp - self._last_stamp
-        self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+        last_stamp = self._guard.last_stamp(frame.source)
+        dt = None if last_stamp is None else hdr.stamp - last_stamp
+        self._guard.accept(hdr, frame.source)
         if self._recalibrate:
             try:
                 cal = anthropometric(frame, self.bone_of)
@@ -277,7 +268,7 @@ class Retargeter:
                 if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
                     raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
                 self.set_calibration(cal)
-                self._last_seq, self._last_stamp = hdr.seq, hdr.stamp
+                self._guard.accept(hdr, frame.source)
                 dt = None
             except CalibrationError as exc:
                 if self.calibration is None:

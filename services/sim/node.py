@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import json
 import queue
 import threading
 import time
@@ -24,7 +23,7 @@ from services.sim.render import BackgroundFrameWriter, FrameWriter, open_rendere
 from services.sim.sim_core import SimCore
 from shared.bus import LatestSlot, ServiceRunner
 from shared.keys import Keys
-from shared.messages import JointCommand
+from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
@@ -36,17 +35,10 @@ def parse_follow(payload: bytes) -> str:
     Raises:
         ValueError: empty or not a single key chunk ``[A-Za-z0-9_-]+``.
     """
-    value = None
     try:
-        value = msgpack.unpackb(payload, raw=False)
-    except Exception:
-        try:
-            value = json.loads(payload.decode())
-        except (UnicodeDecodeError, json.JSONDecodeError):
-            value = payload.decode(errors="replace").strip()
-    if not isinstance(value, (str, dict)):
-        # One printable byte is also valid msgpack (b"b" unpacks to the integer 98): read it as text.
-        value = payload.decode(errors="replace").strip()
+        value = parse_query(payload)
+    except MessageError as exc:
+        raise ValueError(exc.detail) from None
     if isinstance(value, dict):
         value = value.get("follow")
     if not isinstance(value, str) or not value:

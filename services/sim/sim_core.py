@@ -69,6 +69,16 @@ class SimConfig:
     contact_exclude_hops: int = 3
     solver_id: str = "main"
 
+    def __post_init__(self) -> None:
+        for name in ("timestep", "watchdog"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
+        if self.max_extrapolation < 0 or self.contact_exclude_hops < 0:
+            raise ValueError(
+                f"max_extrapolation ({self.max_extrapolation} s) and contact_exclude_hops "
+                f"({self.contact_exclude_hops}) must be >= 0"
+            )
+
 
 @dataclass
 class SimCounters:

@@ -1,6 +1,6 @@
-"""``mimic sim-track``: measure servo tracking of a sine and print JSON.
+"""``mimic bench sim-track``: measure servo tracking of a sine and print JSON.
 
-Example: ``mimic sim-track`` (1 Hz, 30 degree sine on the 14 arm joints, commands at
+Example: ``mimic bench sim-track`` (1 Hz, 30 degree sine on the 14 arm joints, commands at
 100 Hz, 5 s) prints ``max_error_deg`` and the servo settings; ``--waist`` moves the
 waist too, ``--command-rate 30`` mimics a 30 fps mocap source.
 """

@@ -59,7 +59,8 @@ class SolverConfig:
 
     Attributes:
         algo: algorithm name (``hqp-nullspace``, ``hqp-original``, ``wqp``, ``clik-nullspace``, ``dls``).
-        qp: QP backend (``piqp`` or ``daqp``).
+        qp: QP backend (``daqp`` or ``piqp``). DAQP: its active set is exact (PIQP's interior point needs
+            the active-set refinement) and it is the faster one here; ``mimic eval`` measures it too.
         rate: control rate [Hz]; dt = 1 / rate.
         solver_id: id published in every command.
         wrist_position_cost: weight of wrist position rows [1/m].
@@ -114,7 +115,7 @@ class SolverConfig:
     """
 
     algo: str = "hqp-nullspace"
-    qp: str = "piqp"
+    qp: str = "daqp"
     rate: float = 500.0
     solver_id: str = "main"
     wrist_position_cost: float = 1.0
@@ -141,12 +142,26 @@ class SolverConfig:
     recovery: bool = True
 
     def __post_init__(self) -> None:
+        from services.solver.qp import QP_BACKENDS
+        from services.solver.registry import ALGORITHMS
+
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"unknown algorithm {self.algo!r}; known: {sorted(ALGORITHMS)}")
+        if self.qp not in QP_BACKENDS:
+            raise ValueError(f"unknown QP backend {self.qp!r}; known: {sorted(QP_BACKENDS)}")
         if not 1.0 <= self.rate <= 10000.0:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
         if self.wrist_orientation_level not in (1, 2, 3):
             raise ValueError(f"wrist_orientation_level must be 1 (paper), 2 or 3, got {self.wrist_orientation_level}")
         if self.max_command_lead is not None and not self.max_command_lead > 0:
             raise ValueError(f"max_command_lead must be > 0 [rad] or None, got {self.max_command_lead}")
+        gains = {"gain": self.gain, "posture_gain": self.posture_gain, "orientation_gain": self.orientation_gain}
+        bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
+        if bad:
+            raise ValueError(f"gains [1/s] must be > 0, got {bad}")
+        if self.smoothing_ticks <= MAX_STEP_TICKS:
+            # A tick may cover up to MAX_STEP_TICKS nominal ticks: the smoother's segment must be longer.
+            raise ValueError(f"smoothing_ticks must be > {MAX_STEP_TICKS:g}, got {self.smoothing_ticks}")
 
     @property
     def dt(self) -> float:
@@ -230,7 +245,7 @@ class SolverCore:
         # independently mapped orientations cannot spoil the wrist and elbow positions.
         # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
         # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
-        self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
+        self.wrist_tasks = [PositionTask(w, cfg.wrist_position_cost, gain) for w in WRISTS]
         og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
         self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
         self._position_tasks = list(self.wrist_tasks)
@@ -428,40 +443,38 @@ class SolverCore:
     def _set_targets(self, t: float) -> list[str]:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""
         conf = self.configuration
+        samples = {name: self.tracker.sample(name, t) for name in (*WRISTS, *ELBOWS)}
         missing: list[str] = []
         held: list[str] = []
-        for task in self.wrist_tasks:
-            s = self.tracker.sample(task.frame, t)
+        for task in (*self.wrist_tasks, *self.elbow_tasks):
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 missing.append(task.frame)
                 continue
-            task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
-            if not self.orientation_tasks:
+            if isinstance(task, FrameTask):  # the paper's hierarchy: full wrist poses on level 1
+                task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
                 task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+            else:
+                task.set_target(s.p, s.v, check=False)
             if s.held:
                 held.append(task.frame)
         for task in self.orientation_tasks:
-            s = self.tracker.sample(task.frame, t)
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)
             task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
         elbow_rotation = False
-        for task, rot in zip(self.elbow_tasks, self.elbow_orientation_tasks):
-            s = self.tracker.sample(task.frame, t)
+        for task in self.elbow_orientation_tasks:
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
-                rot.set_target_from_configuration(conf)
-                missing.append(task.frame)
                 continue
-            task.set_target(s.p, s.v, check=False)
-            rot.set_target(s.p, s.R, s.v, s.w, check=False)
-            rot.set_orientation_cost(self.config.elbow_orientation_cost if s.use_rotation else 0.0)
+            task.set_target(s.p, s.R, s.v, s.w, check=False)
+            task.set_orientation_cost(self.config.elbow_orientation_cost if s.use_rotation else 0.0)
             elbow_rotation |= s.use_rotation
-            if s.held:
-                held.append(task.frame)
         # Elbow orientation rows only while a target asks for them: the plain levels keep their size.
         self.levels = self._levels_elbow_poses if elbow_rotation else self._levels_position_elbows
         why: list[str] = []

@@ -2,8 +2,9 @@
 
     x = 0; Z = I
     for each level k:
-        z* = argmin ||A_k (x + Z z) - b_k||^2 + eps ||z||^2   s.t.  lb <= x + Z z <= ub
-        x = x + Z z*
+        x0 = x + Z Z^T (mid - x)               (nearest the box centre mid = (lb + ub) / 2)
+        w* = argmin ||A_k (x0 + Z w) - b_k||^2 + eps ||w||^2   s.t.  lb <= x0 + Z w <= ub
+        x = x0 + Z w*
         Z = Z null(A_k Z)        (column-pivoted QR, rank-revealing)
 
 Each level only moves inside the null space of every level above it, so it can
@@ -23,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import (
@@ -72,33 +74,43 @@ class HqpNullspace(CascadeQp):
         if ineq is not None and not ineq.rows:
             ineq = None
         x = np.zeros(n)
+        # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
+        # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
+        # unconstrained optimum out of it (a QP on every tick instead of a few).
+        mid = 0.5 * (lb + ub)
         Z: np.ndarray | None = None  # None means identity (first level)
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
             if Z is not None and Z.shape[1] == 0:
                 break  # no freedom left for lower levels
+            # This level moves x + Z w around base, the point of x + range(Z) nearest the box centre.
             if Z is None:
-                M, c = A, b
+                base, M = mid, A
             else:
-                M, c = A @ Z, b - A @ x
-            split = split_row_space(M)
+                base = x + Z @ (Z.T @ (mid - x))
+                M = A @ Z
+            c = b - A @ base
+            last = k == len(As) - 1
+            # The last level needs no null space: its damped optimum comes from the normal equations.
+            split = None if last and self.level_eps(k) > 0 else split_row_space(M)
             xt = None
             if self.shortcut:
-                z = split.lstsq(c, self.level_eps(k))
-                xt = x + (z if Z is None else Z @ z)
+                w = _damped_lstsq(M, c, self.level_eps(k)) if split is None else split.lstsq(c, self.level_eps(k))
+                xt = base + (w if Z is None else Z @ w)
                 if not within(xt, lb, ub) or (ineq is not None and not ineq.satisfied(xt)):
                     xt = None
             if xt is None:
-                z, its, status = self._level_qp(M, c, Z, lb - x, ub - x, k, level_rows(ineq, Z, x, lb - x, ub - x))
+                rows = level_rows(ineq, Z, base, lb - base, ub - base)
+                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k, rows)
                 iters += its
                 calls += 1
-                if z is None:
+                if w is None:
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {status}")
                     reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
                     break
-                xt = x + (z if Z is None else Z @ z)
+                xt = base + (w if Z is None else Z @ w)
                 # Within the QP's own tolerance: snap onto the box.
                 if not within(xt, lb, ub, QP_BOUND_TOL) or (ineq is not None and not ineq.satisfied(xt, QP_BOUND_TOL)):
                     gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
@@ -108,6 +120,8 @@ class HqpNullspace(CascadeQp):
                     break
                 clip(xt, lb, ub)
             x = xt
+            if last:
+                break
             N = split.null_basis
             Z = N if Z is None else Z @ N
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
@@ -147,3 +161,13 @@ class HqpNullspace(CascadeQp):
                     return refine_on_active_set(M, c, r.x, G, gl, gu, eps=eps0), iters, status
                 return refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0), iters, status
         return None, iters, status
+
+
+def _damped_lstsq(M: np.ndarray, c: np.ndarray, eps: float) -> np.ndarray:
+    """argmin ||M w - c||^2 + eps ||w||^2 for eps > 0: (M^T M + eps I) w = M^T c (positive definite)."""
+    H = M.T @ M
+    H.flat[:: H.shape[0] + 1] += eps
+    _c, w, info = lapack.dposv(H, M.T @ c)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dposv failed with info={info}")
+    return w

@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from services.solver.core import MIN_STEP, SolverConfig, SolverCore
+from shared import config as shared_config
 from shared.bus import ServiceRunner
 from shared.messages import JointCommand, RobotState, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
@@ -41,22 +42,8 @@ class JointMap:
 
 
 def config_from_args(args: argparse.Namespace) -> SolverConfig:
-    """SolverConfig from the ``mimic solve`` flags."""
-    optional = {
-        "wrist_orientation_cost": args.orientation_weight,
-        "gain": args.gain,
-        "orientation_gain": getattr(args, "orientation_gain", None),
-        "wrist_orientation_level": getattr(args, "wrist_orientation_level", None),
-    }
-    return SolverConfig(
-        algo=args.algo,
-        qp=args.qp,
-        rate=args.rate,
-        solver_id=args.id,
-        smoothing=not args.no_smoothing,
-        closed_loop=bool(getattr(args, "closed_loop", False)),
-        **{k: v for k, v in optional.items() if v is not None},
-    )
+    """SolverConfig from the ``mimic solve`` flags (validated by SolverConfig)."""
+    return shared_config.config_from_args(SolverConfig, args)
 
 
 class TickClock:
@@ -100,8 +87,7 @@ class TickStats:
 
     def add(self, svc, cmd: JointCommand, core: SolverCore, clock: TickClock) -> None:
         svc.status.state = {"init": "holding", "held": "holding", "failed": "degraded"}.get(cmd.status, "ok")
-        if cmd.status != "ok":
-            svc.status.received(f"status_{cmd.status}")
+        svc.status.outcome(cmd.status)
         self.ticks_ms.append(cmd.solve_ms)
         if len(self.ticks_ms) < STATS_WINDOW:
             return
@@ -146,17 +132,17 @@ def run(args: argparse.Namespace) -> int:
     robot = build_robot_model(args.robot, with_waist=not args.no_waist)
     core = SolverCore(robot, config_from_args(args))
     joint_map = JointMap(robot.joint_names)
-    with ServiceRunner("solver", args, instance=args.id) as svc:
+    with ServiceRunner("solver", args, instance=args.solver_id) as svc:
         log = svc.log
         targets = svc.subscribe_latest(svc.keys.targets, TaskTargets.decode, stream="targets")
         states = svc.subscribe_latest(svc.keys.sim_state, RobotState.decode, stream="sim_state")
-        pub = svc.publisher(svc.keys.command(args.id))
+        pub = svc.publisher(svc.keys.command(args.solver_id))
         svc.status.state = "holding"
         # A solver started mid-stream continues from where the robot is: wait briefly for its state.
         anchored = start_state(core, states, joint_map, args.startup_wait, log)
         log.info(
             "%s/%s with %s, %d joints, %.0f Hz (%s), smoothing %s",
-            args.id,
+            args.solver_id,
             args.algo,
             args.qp,
             robot.nq,
@@ -179,8 +165,10 @@ def run(args: argparse.Namespace) -> int:
             # The solver integrates its own commands (feeding back the servo lag would add it to every
             # step); the measured joints of the robot following this solver bound how far the command
             # may lead them, and with --closed-loop re-anchor it after a jump. Shadows stay open loop.
-            cmd = core.step(msg, measured_joints(state, joint_map, args.id), t)
+            cmd = core.step(msg, measured_joints(state, joint_map, args.solver_id), t)
             svc.publish(pub, cmd, stream="commands")
             stats.add(svc, cmd, core, clock)
             clock.ticked(t)
+        # The last status (published on exit) carries the final counts, however few ticks ran.
+        svc.status.extra.update({k: float(v) for k, v in core.counts.items()})
     return 0

@@ -3,98 +3,64 @@
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import sys
-import threading
 import time
-from pathlib import Path
 
 import pytest
 import zenoh
 
-from shared.bus import bus_args, open_session
-from shared.keys import Keys
+from shared.bus import bus_args
 from shared.messages import ServiceStatus
-from shared.paths import REPO_ROOT
 
-REPO = REPO_ROOT
-PEER = Path(__file__).with_name("bus_peer.py")
+PEER = [sys.executable, "-m", "tests.support.bus_peer"]
 pytestmark = pytest.mark.integration
 
 
-def _spawn(argv, **kw):
-    return subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
+def _wait_output(stack, text: str, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if text in stack.output(tail=None):
+            return True
+        time.sleep(0.05)
+    return False
 
 
-class _Lines:
-    def __init__(self, proc):
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
+def test_two_processes_exchange_messages_and_survive_a_sigkill(local_stack):
+    stack = local_stack
+    stack.start_router()
+    stack.start("listener", argv=[*PEER, "listener", "--status-period", "0.2"])
+    stack.start("talker", argv=[*PEER, "talker", "--status-period", "0.2"])
+    stack.wait_alive(["listener/main", "talker/main"], timeout=60)
 
-    def _read(self, proc):
-        for line in proc.stdout:
-            self.lines.append(line)
+    statuses: dict[str, ServiceStatus] = {}
+    keys = stack.keys
+    sub = stack.bus.declare_subscriber(
+        keys.all_status,
+        lambda s: statuses.__setitem__(str(s.key_expr), ServiceStatus.decode(s.payload.to_bytes())),
+    )
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        st = statuses.get(keys.status("listener"))
+        # Count what arrived, not the talker's seq: the listener may join a few frames late.
+        if st and st.counts.get("received.frames", 0) > 20:
+            break
+        time.sleep(0.1)
+    st = statuses[keys.status("listener")]
+    assert st.counts.get("received.frames", 0) > 20, st
+    assert st.rejects == {}
 
-    def wait_for(self, text, timeout=10.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if any(text in ln for ln in self.lines):
-                return True
-            time.sleep(0.05)
-        return False
+    assert _wait_output(stack, "alive/talker/main"), stack.output()
+    stack.kill9("talker")
+    assert _wait_output(stack, "DELETE"), "listener did not notice the killed talker:\n" + stack.output()
+    # The listener keeps running and keeps reporting.
+    before = statuses[keys.status("listener")].uptime
+    time.sleep(0.8)
+    assert stack.running("listener")
+    assert statuses[keys.status("listener")].uptime > before
+    sub.undeclare()
 
-
-def test_two_processes_exchange_messages_and_survive_a_sigkill(zenoh_endpoint):
-    router = _spawn([sys.executable, "-m", "services.cli", "router", "--listen", zenoh_endpoint])
-    procs = [router]
-    try:
-        time.sleep(1.0)
-        common = ["--connect", zenoh_endpoint, "--session", "bustest", "--status-period", "0.2"]
-        listener = _spawn([sys.executable, str(PEER), "listener", *common])
-        talker = _spawn([sys.executable, str(PEER), "talker", *common])
-        procs += [listener, talker]
-        out = _Lines(listener)
-
-        statuses: dict[str, ServiceStatus] = {}
-        with open_session(bus_args(connect=[zenoh_endpoint], session="bustest")) as z:
-            keys = Keys("bustest")
-            z.declare_subscriber(
-                keys.all_status,
-                lambda s: statuses.__setitem__(str(s.key_expr), ServiceStatus.decode(s.payload.to_bytes())),
-            )
-            deadline = time.monotonic() + 20
-            while time.monotonic() < deadline:
-                st = statuses.get(keys.status("listener"))
-                # Count what arrived, not the talker's seq: the listener may join a few frames late.
-                if st and st.counts.get("received.frames", 0) > 20:
-                    break
-                time.sleep(0.1)
-            st = statuses[keys.status("listener")]
-            assert st.counts.get("received.frames", 0) > 20, st
-            assert st.rejects == {}
-
-            assert out.wait_for("alive/talker/main"), "".join(out.lines)
-            talker.send_signal(signal.SIGKILL)
-            talker.wait(5)
-            assert out.wait_for("DELETE"), "listener did not notice the killed talker:\n" + "".join(out.lines)
-            # The listener keeps running and keeps reporting.
-            before = statuses[keys.status("listener")].uptime
-            time.sleep(0.8)
-            assert listener.poll() is None
-            assert statuses[keys.status("listener")].uptime > before
-
-        listener.send_signal(signal.SIGTERM)
-        assert listener.wait(10) == 0
-        assert out.wait_for("listener/main stopped")
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+    assert stack.sup.stop("listener", timeout=10) == 0
+    assert _wait_output(stack, "listener/main stopped"), stack.output()
 
 
 def test_zenoh_config_defaults_and_flags(tmp_path, monkeypatch):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import subprocess
 import sys
 import threading
 import time
@@ -29,15 +28,12 @@ import numpy as np
 import zenoh
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
-from services.launcher.supervisor import stop_processes
-from shared.bus import bus_args, open_session
+from services.launcher.local_stack import LocalStack
+from shared.bus import bus_args, free_port, open_session
 from shared.keys import Keys
 from shared.messages import HumanFrame, Message, MessageError, ServiceStatus, TaskTargets
-from shared.paths import REPO_ROOT
 from shared.report import emit_json
 from tests.fuzz.fuzz_payloads import adversarial_payload, backwards_sequence, valid_message
-
-REPO = REPO_ROOT
 
 
 @dataclass(frozen=True)
@@ -135,7 +131,7 @@ def fuzz_live_service(
     session: str,
     target: ServiceUnderFuzz,
     payloads: list[bytes],
-    proc: subprocess.Popen | None = None,
+    running: Callable[[], bool] | None = None,
     rate: float = 1000.0,
     timeout: float = 30.0,
 ) -> dict:
@@ -144,7 +140,7 @@ def fuzz_live_service(
     Args:
         endpoint: router the service is connected to. session: its session.
         target: the service description. payloads: bytes to send, in order.
-        proc: the service process, to check it survived (optional).
+        running: says whether the service process still runs, to check it survived (optional).
         rate: publish rate [Hz]; congestion control BLOCK, so nothing is dropped on the way.
 
     Returns:
@@ -205,7 +201,7 @@ def fuzz_live_service(
     decoder_rejects = {r: delta_rejects.get(r, 0) for r in expected}
     service_rejects = {r: v for r, v in delta_rejects.items() if r not in expected}
     received, dropped, errors = delta("received"), delta("dropped"), delta("errors")
-    alive = proc is None or proc.poll() is None
+    alive = running is None or running()
     missing = sum(expected.values()) - sum(decoder_rejects.values())
     # Two bus styles: decode in the Zenoh callback ("received" = decoded ones) or count every raw
     # sample as received and decode when taken (newest-wins slots, which may evict unread ones).
@@ -273,6 +269,15 @@ def payload_mix(type_name: str, n: int, rng_seed: int = 0) -> list[bytes]:
     return out + back
 
 
+def run_against(stack: LocalStack, target: ServiceUnderFuzz, payloads: list[bytes], **kw) -> dict:
+    """Start the router and ``target`` in ``stack``, fuzz it (:func:`fuzz_live_service`), return the report."""
+    stack.start_router()
+    stack.start(target.service, argv=["mimic", *target.argv, "--status-period", "0.2"])
+    return fuzz_live_service(
+        stack.endpoint, stack.session, target, payloads, running=lambda: stack.running(target.service), **kw
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="fuzz a running service over a loopback router")
     p.add_argument("--service", choices=sorted(SERVICES), default="retarget")
@@ -282,26 +287,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     target = SERVICES[args.service]
-    from tests.conftest import free_port
-
-    endpoint, session = f"tcp/127.0.0.1:{free_port()}", "livefuzz"
-    cli = [sys.executable, "-m", "services.cli"]
     t0 = time.perf_counter()
     payloads = payload_mix(target.input_cls.TYPE, args.examples, args.seed)
     gen_s = time.perf_counter() - t0
-    router = subprocess.Popen([*cli, "router", "--listen", endpoint], cwd=REPO, stdout=subprocess.DEVNULL)
-    svc = None
-    try:
-        time.sleep(0.8)
-        svc = subprocess.Popen(
-            [*cli, *target.argv, "--connect", endpoint, "--session", session, "--status-period", "0.2"],
-            cwd=REPO,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        report = fuzz_live_service(endpoint, session, target, payloads, svc, rate=args.rate, timeout=60.0)
-    finally:
-        stop_processes(svc, router)
+    with LocalStack("livefuzz", f"tcp/127.0.0.1:{free_port()}", status_period=0.2) as stack:
+        report = run_against(stack, target, payloads, rate=args.rate, timeout=60.0)
     report["generate_s"] = round(gen_s, 1)
     emit_json(report, args.json, indent=1)
     return 0 if report["ok"] else 1

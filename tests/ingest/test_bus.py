@@ -163,7 +163,7 @@ def test_udp_and_xsens_bridge(router):
     assert len(mvn) == 1 and mvn[0].hdr.seq == 77
     assert np.allclose(mvn[0].bones["left_elbow"].p, [0.3, 0.2, 0.2], atol=1e-6)
     rejects = result["rejects"]
-    assert rejects.get("duplicate_seq") == 1 and rejects.get("out_of_order") == 1
+    assert rejects.get("duplicate_seq") == 1 and rejects.get("seq_backwards") == 1
     assert rejects.get("nan_bone") == 1 and rejects.get("msgpack") == 1
 
 

@@ -42,7 +42,7 @@ def test_duplicate_and_out_of_order_seq_dropped():
     out, issues = s.step(frame(10))
     assert out is None and reasons(issues) == [("duplicate_seq", "dropped")]
     out, issues = s.step(frame(7))
-    assert out is None and reasons(issues) == [("out_of_order", "dropped")]
+    assert out is None and reasons(issues) == [("seq_backwards", "dropped")]
     out, _ = s.step(frame(5000))  # gaps are fine (lost datagrams)
     assert out is not None
     out, issues = s.step(frame(0))  # far back: the source restarted

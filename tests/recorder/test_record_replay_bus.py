@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.launcher.supervisor import stop_processes
 from services.recorder.bench_cli import make_frame, run_bench, wait_recording
 from services.recorder.mcap_io import RecordingWriter, read_recording
 from shared.bus import bus_args, open_session
@@ -34,11 +33,9 @@ def _spawn(argv, **kw):
 
 
 @pytest.fixture()
-def router(zenoh_endpoint):
-    proc = _spawn([*CLI, "router", "--listen", zenoh_endpoint], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(0.8)
-    yield zenoh_endpoint
-    stop_processes(proc)
+def router(local_stack):
+    local_stack.start_router()
+    return local_stack.endpoint
 
 
 @pytest.mark.slow

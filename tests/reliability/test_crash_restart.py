@@ -6,7 +6,7 @@ others keep running and publishing their status, liveliness reports the loss,
 the sim holds its pose while no solver commands come, and after the restart new
 mocap frames reach the robot state within 1 s of the service being back on the
 bus, without a joint jump. Timings are bounds that hold on a loaded 2-core machine;
-the figures themselves come from ``tests/reliability/faults.py crash``.
+the figures themselves come from ``python -m tests.support.faults crash``.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
 
-from services.evaluation.soak import Observer
 from services.launcher.supervisor import stop_processes
 from shared.bus import free_port
 from shared.paths import REPO_ROOT
+from tests.support.faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
+from tests.support.observer import Observer
 
 REPO = REPO_ROOT
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -113,7 +113,8 @@ def test_mimic_up_restart_brings_a_killed_service_back(tmp_path):
         while time.monotonic() < deadline and not {"router", "retarget", "solve", "sim"} <= set(_children(up.pid)):
             time.sleep(0.2)
         obs = Observer(endpoint, session)
-        obs.wait_alive(["retarget/main", "solver/main", "sim/main"], timeout=120)
+        pipeline = {"retarget/main", "solver/main", "sim/main"}
+        obs.wait_until(lambda: pipeline <= obs.alive, 120, "the pipeline's liveliness tokens")
         clip = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-rel-"))[1]
         pub = subprocess.Popen(
             [sys.executable, "-m", "services.cli", "publish", str(clip), "--loop", "--connect", endpoint,

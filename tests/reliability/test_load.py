@@ -1,7 +1,7 @@
 """Load (issue 8, item 5): a 10 kHz burst of HumanFrames into the real stack.
 
 Frames are published from the test process at 10 kHz for a few seconds (the
-10-second figure: ``tests/reliability/faults.py burst --rate 10000 --duration 10``).
+10-second figure: ``python -m tests.support.faults burst --rate 10000 --duration 10``).
 Newest wins: retarget keeps a bounded queue and the solver and sim keep the
 newest message, so the end-to-end latency stays bounded and does not grow from
 the first to the last second, and the skipped frames are counted as dropped.
@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from faults import PIPELINE, burst, running_stack
+
+from tests.support.faults import PIPELINE, burst, running_stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 RATE = 10000.0

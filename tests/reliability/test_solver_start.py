@@ -10,33 +10,26 @@ pose and stay there while no targets come.
 
 from __future__ import annotations
 
-import signal
 import time
 
 import numpy as np
 import pytest
-from faults import spawn_cli
 
-from services.evaluation.soak import Observer
-from services.launcher.supervisor import stop_processes
 from shared.messages import Header, RobotState
 from shared.robot.pinocchio_model import build_robot_model
+from tests.support.observer import Observer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
-def test_solver_started_without_state_anchors_on_the_first_state(zenoh_endpoint):
-    session = f"anchor{zenoh_endpoint.rsplit(':', 1)[1]}"
+def test_solver_started_without_state_anchors_on_the_first_state(local_stack):
     robot = build_robot_model()
     q_robot = robot.clip(robot.q_rest + 0.3)
-    common = ["--connect", zenoh_endpoint, "--session", session]
-    router, _ = spawn_cli("router", "--listen", zenoh_endpoint)
-    solver = obs = None
+    local_stack.start_router()
+    local_stack.start("solver", argv=["mimic", "solve", "--id", "main", "--startup-wait", "0.2"])
+    obs = Observer(local_stack.endpoint, local_stack.session)
     try:
-        time.sleep(0.8)
-        solver, out = spawn_cli("solve", "--id", "main", "--startup-wait", "0.2", *common, output=True)
-        obs = Observer(zenoh_endpoint, session)
-        obs.wait_alive(["solver/main"], timeout=60)
+        local_stack.wait_alive(["solver/main"], timeout=60)
         obs.wait_until(lambda: len(obs.commands) > 20, 30, "commands from rest")
         with obs.lock:
             from_rest = obs.commands[-1].q
@@ -52,10 +45,9 @@ def test_solver_started_without_state_anchors_on_the_first_state(zenoh_endpoint)
         time.sleep(0.2)
         with obs.lock:
             after = [c.q for c in obs.commands if c.t > t_first + 0.1]
-        assert after, "".join(out)
-        assert max(float(np.max(np.abs(q - q_robot))) for q in after) < 1e-6, "".join(out)
-        assert any("re-initialised from the first robot state" in ln for ln in out), "".join(out)
+        out = local_stack.output(tail=None)
+        assert after, out
+        assert max(float(np.max(np.abs(q - q_robot))) for q in after) < 1e-6, out
+        assert "re-initialised from the first robot state" in out, out
     finally:
-        if obs is not None:
-            obs.close()
-        stop_processes(solver, router, sig=signal.SIGTERM)
+        obs.close()

@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from faults import running_stack, swap_solver, vmax_by_joint
+
+from tests.support.faults import running_stack, swap_solver, vmax_by_joint
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 VMAX = max(vmax_by_joint().values())

@@ -157,7 +157,7 @@ def test_bounded_mode_keeps_wild_motion_in_the_box(make, workspace):
 
 
 def test_incremental_mode_starts_at_robot_rest_and_adds_deltas(make, robot14, workspace):
-    r = make(mode="incremental", gain=0.5)
+    r = make(mode="incremental", incremental_scale=0.5)
     out0 = r.step(make_frame(0, 0.0))
     rest = robot14.frame_poses(robot14.q_rest, names=TARGET_NAMES)
     for t in TARGET_NAMES:

@@ -2,12 +2,12 @@
 
 Each scenario runs real processes on loopback (router, retarget, solver, sim, the
 demo clip looping through ``mimic publish``), injects one fault and returns the
-measured figures as a dict; the tests in this folder assert on them. Run as a
+measured figures as a dict; the tests in tests/reliability assert on them. Run as a
 script to print the figures as JSON::
 
-    .venv/bin/python tests/reliability/faults.py crash      # kill -9 + restart each service
-    .venv/bin/python tests/reliability/faults.py swap       # solver swap mid-stream
-    .venv/bin/python tests/reliability/faults.py burst --rate 10000 --duration 10
+    .venv/bin/python -m tests.support.faults crash      # kill -9 + restart each service
+    .venv/bin/python -m tests.support.faults swap       # solver swap mid-stream
+    .venv/bin/python -m tests.support.faults burst --rate 10000 --duration 10
 """
 
 from __future__ import annotations
@@ -16,55 +16,22 @@ import argparse
 import contextlib
 import itertools
 import json
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
 
-from shared.paths import REPO_ROOT
-
-REPO = REPO_ROOT
-if str(REPO) not in sys.path:  # as a script
-    sys.path.insert(0, str(REPO))
-
-from services.evaluation.soak import (  # noqa: E402
-    FramePublisher,
-    LocalStack,
-    Observer,
-    StateSample,
-    dropped_counts,
-    latency_windows,
-)
-from shared.bus import free_port, query  # noqa: E402
-from shared.robot.pinocchio_model import build_robot_model  # noqa: E402
+from services.evaluation.soak import FramePublisher, dropped_counts, latency_windows
+from services.launcher.local_stack import LocalStack
+from shared.bus import free_port, query
+from shared.robot.pinocchio_model import build_robot_model
+from tests.support.observer import Observer, StateSample
 
 PIPELINE = ("retarget", "solver", "sim")
 STATUS_PERIOD = 0.2  # [s] every service's status period in these scenarios
 #: Measured q may lead the rate-limited servo target a little (PD tracking overshoot) [rad/s].
 VEL_TOL = 0.5
-
-
-def spawn_cli(*argv: str, output: bool = False) -> tuple[subprocess.Popen, list[str]]:
-    """Start ``python -m services.cli ARGV`` in the repo.
-
-    With ``output`` its merged stdout and stderr lines are collected into the returned list
-    (for failure messages and log checks); without, they are discarded.
-    """
-    lines: list[str] = []
-    sink = subprocess.PIPE if output else subprocess.DEVNULL
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", *argv],
-        cwd=REPO,
-        stdout=sink,
-        stderr=subprocess.STDOUT if output else subprocess.DEVNULL,
-        text=True,
-    )
-    if output:
-        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
-    return proc, lines
 
 
 def vmax_by_joint() -> dict[str, float]:
@@ -87,18 +54,14 @@ def running_stack(names=PIPELINE, extra: dict[str, list[str]] | None = None, cli
         stack.start_all(list(names), extra)
         obs = Observer(endpoint, session)
         try:
-            obs.wait_alive([f"{n}/main" for n in names], timeout=120, stack=stack)
             if clip_loop:
                 # The ellipse: both hands move without touching (box_lift's hand contacts make the
                 # simulated joints bounce past vmax, which would blur the jump checks).
                 clip = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-rel-"))[1]
                 stack.start(
                     "publish",
-                    argv=[
-                        sys.executable, "-m", "services.cli", "publish", str(clip), "--loop",
-                        "--connect", endpoint, "--session", session, "--status-period", str(STATUS_PERIOD),
-                    ],
-                )  # fmt: skip
+                    argv=["mimic", "publish", str(clip), "--loop", "--status-period", str(STATUS_PERIOD)],
+                )
                 obs.wait_until(
                     lambda: any(s.seq > 0 and not s.holding for s in obs.states[-50:]), 60, "frames reaching the sim"
                 )
@@ -169,7 +132,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     res["new_frames_during_outage"] = sum(1 for s in after if s.t0 > t_kill_ns)
 
     # Restart: the same command as a new process.
-    log_mark = len(stack.log.getvalue())
+    log_mark = len(stack.output(tail=None))
     t_restart = stack.start(victim)
     t_alive = obs.wait_until(
         lambda: any(t >= t_restart and k == "PUT" and n == name for t, k, n in obs.alive_events), 60, f"{name} back"
@@ -181,7 +144,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
     )
     if victim == "retarget":
         # The operator is moving now: the restarted retarget must keep the session's calibration.
-        res["retarget_calibration_restored"] = "calibration restored from" in stack.log.getvalue()[log_mark:]
+        res["retarget_calibration_restored"] = "calibration restored from" in stack.output(tail=None)[log_mark:]
     res["startup_s"] = t_alive - t_restart  # process start until its liveliness token
     res["resume_after_alive_s"] = t_resume - t_alive  # token until a new frame reached the robot state
     res["resume_after_restart_s"] = t_resume - t_restart
@@ -199,7 +162,7 @@ def crash_restart(stack: LocalStack, obs: Observer, victim: str) -> dict:
             new = [c.q for c in obs.commands if c.t >= t_alive and c.solver_id == "main"]
             steps = [float(np.max(np.abs(b - a))) for a, b in itertools.pairwise(new)]
             res["new_solver_max_cmd_step_rad"] = max(steps, default=None)
-            new_log = stack.log.getvalue()[log_mark:]
+            new_log = stack.output(tail=None)[log_mark:]
             res["new_solver_started_from_rest"] = "starting from the rest pose" in new_log
             res["new_solver_reanchored"] = "re-initialised from the first robot state" in new_log
     vmax = np.full(states[0].q.shape, max(vmax_by_joint().values())) if states else np.zeros(0)
@@ -213,12 +176,9 @@ def swap_solver(stack: LocalStack, obs: Observer, algo: str = "wqp") -> dict:
     """Second solver ``b`` with another algorithm, switch the sim to it, stop the first one."""
     t_b = stack.start(
         "solver-b",
-        argv=[
-            sys.executable, "-m", "services.cli", "solve", "--algo", algo, "--id", "b",
-            "--connect", stack.endpoint, "--session", stack.session, "--status-period", str(STATUS_PERIOD),
-        ],
-    )  # fmt: skip
-    obs.wait_alive(["solver/b"], timeout=60, stack=stack)
+        argv=["mimic", "solve", "--algo", algo, "--id", "b", "--status-period", str(STATUS_PERIOD)],
+    )
+    stack.wait_alive(["solver/b"], timeout=60)
     obs.wait_until(lambda: any(c.solver_id == "b" and c.t > t_b for c in obs.commands[-400:]), 10, "commands from b")
     time.sleep(0.5)
     t_switch = time.monotonic()

@@ -1,0 +1,109 @@
+"""Frame ordering: the one guard for every consumer of a frame stream (ingest sanitizer, retarget).
+
+The rule, per source:
+
+* A frame is in order when its ``seq`` is above the last accepted one and its ``stamp``
+  [s] is later than the last accepted one's. Otherwise it is rejected with a reason:
+  ``duplicate_seq`` (same seq), ``seq_backwards`` (lower seq) or ``time_backwards``
+  (higher seq, stamp not later).
+* A **restart** of the source (a replayed clip, a rebooted device: seq and clock begin
+  again) is recognised, and the frame accepted as the first of a new stream, when
+
+  - its ``seq`` is more than ``reset_gap`` below the last accepted one (an obvious
+    restart: one frame is enough), or
+  - ``resync_after`` frames in a row were out of order (a restart that jumped back only a
+    little, or a clock that jumped back).
+
+  The verdict then says ``restarted`` (reason ``seq_reset``) so the caller can drop its
+  per-stream state (velocity filters, held poses).
+
+State is kept per source name (``check(hdr, source)``), so streams of several sources
+interleaved on one key are each judged against their own history.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from shared.messages import Header
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What the guard says about one frame.
+
+    Attributes:
+        ok: the frame may be used (in order, or the first of a restarted stream).
+        reason: rejection tag when not ok; "seq_reset" when ok because the source restarted.
+        detail: human-readable text.
+    """
+
+    ok: bool
+    reason: str | None = None
+    detail: str = ""
+
+    @property
+    def restarted(self) -> bool:
+        return self.reason == "seq_reset"
+
+
+@dataclass
+class _Stream:
+    seq: int
+    stamp: float
+    bad_in_row: int = 0
+
+
+class SequenceGuard:
+    """Judges frame order per source; see the module docstring for the rule.
+
+    Args:
+        reset_gap: a seq this far below the last accepted one is a restart at once.
+        resync_after: consecutive out-of-order frames after which the source counts as restarted.
+    """
+
+    def __init__(self, reset_gap: int = 1000, resync_after: int = 30):
+        if reset_gap < 1 or resync_after < 1:
+            raise ValueError(f"reset_gap ({reset_gap}) and resync_after ({resync_after}) must be >= 1")
+        self.reset_gap = reset_gap
+        self.resync_after = resync_after
+        self._streams: dict[str, _Stream] = {}
+
+    def check(self, hdr: Header, source: str = "") -> Verdict:
+        """Judge ``hdr`` against ``source``'s last accepted frame (does not accept it: see :meth:`accept`)."""
+        last = self._streams.get(source)
+        if last is None:
+            return Verdict(True)
+        if hdr.seq == last.seq:
+            reason, detail = "duplicate_seq", f"seq {hdr.seq} repeated"
+        elif hdr.seq < last.seq:
+            if last.seq - hdr.seq > self.reset_gap:
+                return Verdict(True, "seq_reset", f"seq jumped back {last.seq} -> {hdr.seq}: source restarted")
+            reason, detail = "seq_backwards", f"seq {hdr.seq} after {last.seq}"
+        elif not hdr.stamp > last.stamp:
+            reason, detail = "time_backwards", f"stamp {hdr.stamp:.6f} s not after {last.stamp:.6f} s"
+        else:
+            last.bad_in_row = 0
+            return Verdict(True)
+        last.bad_in_row += 1
+        if last.bad_in_row >= self.resync_after:
+            return Verdict(
+                True, "seq_reset", f"{last.bad_in_row} frames out of order (last: {detail}): source restarted"
+            )
+        return Verdict(False, reason, detail)
+
+    def accept(self, hdr: Header, source: str = "") -> None:
+        """Record ``hdr`` as ``source``'s last used frame."""
+        self._streams[source] = _Stream(hdr.seq, hdr.stamp)
+
+    def last_stamp(self, source: str = "") -> float | None:
+        """Stamp [s] of ``source``'s last accepted frame (None before the first)."""
+        last = self._streams.get(source)
+        return None if last is None else last.stamp
+
+    def forget(self, source: str | None = None) -> None:
+        """Drop the history of ``source`` (None: of every source)."""
+        if source is None:
+            self._streams.clear()
+        else:
+            self._streams.pop(source, None)

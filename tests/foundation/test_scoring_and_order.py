@@ -1,0 +1,83 @@
+"""The one scorer (robot states against targets, keyed by ``hdr.t0``) and the one sequence guard."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.ingest.sanitizer import FrameSanitizer
+from services.launcher.monitor import StackMonitor
+from shared.messages import Header, Pose, RobotState, Target, TaskTargets
+from shared.scoring import TargetScorer
+from shared.sequence import SequenceGuard
+
+IDENT = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def targets(seq: int, t0: int, x: float) -> TaskTargets:
+    z = np.zeros(3)
+    return TaskTargets(
+        Header(seq, seq * 0.01, t0), {"left_wrist": Target(np.array([x, 0, 0]), IDENT, z, z, True, False)}
+    )
+
+
+def state(seq: int, t0: int, x: float) -> RobotState:
+    frames = {"left_wrist": Pose(np.array([x, 0.0, 0.0]), IDENT)}
+    return RobotState(Header(seq, seq * 0.01, t0), [], np.zeros(0), np.zeros(0), frames, 0.0)
+
+
+def test_scorer_keys_frames_by_t0_across_a_clip_restart():
+    sc = TargetScorer()
+    sc.add_targets(targets(0, 100, 0.0))  # first clip, seq 0
+    sc.add_targets(targets(0, 200, 1.0))  # second clip starts seq again at 0, 1 m away
+    assert sc.add_state(state(0, 100, 0.10)) == (True, None)
+    assert sc.add_state(state(0, 100, 0.02)) == (False, None)  # same frame: its last state counts
+    new, err = sc.add_state(state(0, 200, 0.97))
+    assert new and err == pytest.approx({"left_wrist": 0.02})  # first clip's frame, its last state
+    # Keyed by seq the second clip's seq 0 would be scored against the first clip's targets (0.97 m).
+    assert sc.flush() == pytest.approx({"left_wrist": 0.03})
+    assert sc.add_state(state(0, 150, 0.0)) == (False, None)  # an older frame: ignored
+
+
+def test_monitor_uses_the_scorer():
+    mon = StackMonitor()
+    mon.on_targets(targets(0, 100, 0.0))
+    mon.on_targets(targets(0, 200, 1.0))
+    mon.on_state(state(0, 100, 0.05), now_ns=100 + 2_000_000)
+    mon.on_state(state(0, 200, 0.99), now_ns=200 + 3_000_000)
+    s = mon.summary()
+    assert s["wrist_err_cm"]["mean"] == pytest.approx(3.0)  # (5 + 1) / 2 cm
+    assert s["latency_ms"]["samples"] == 2 and s["latency_ms"]["max"] == pytest.approx(3.0)
+
+
+def test_sequence_guard_rule():
+    g = SequenceGuard(reset_gap=100, resync_after=3)
+    first = Header(500, 5.0, 1)
+    assert g.check(first).ok
+    g.accept(first)
+    assert g.check(Header(500, 5.1, 1)).reason == "duplicate_seq"
+    assert g.check(Header(499, 5.2, 1)).reason == "seq_backwards"
+    v = g.check(Header(501, 5.0, 1))  # third bad in a row: a restart
+    assert v.ok and v.restarted
+    g.accept(Header(501, 5.0, 1))
+    assert g.check(Header(502, 4.9, 1)).reason == "time_backwards"
+    assert g.check(Header(503, 5.1, 1)).ok  # in order again: the count of bad ones starts over
+    assert g.check(Header(0, 0.0, 1)).restarted  # more than reset_gap back: a restart at once
+    # Per source: another source's history does not judge this one.
+    assert g.check(Header(1, 0.0, 1), source="other").ok
+    with pytest.raises(ValueError, match="must be >= 1"):
+        SequenceGuard(resync_after=0)
+
+
+def test_sanitizer_follows_the_guard_rule():
+    from shared.messages import Bone, HumanFrame
+
+    def frame(seq: int, stamp: float) -> HumanFrame:
+        return HumanFrame(Header(seq, stamp, 1), "s", Pose(np.zeros(3), IDENT), {"pelvis": Bone(np.zeros(3), IDENT)})
+
+    s = FrameSanitizer(resync_after=2)
+    assert s.step(frame(10, 1.0))[0] is not None
+    out, issues = s.step(frame(11, 0.5))
+    assert out is None and issues[0].reason == "time_backwards"
+    out, issues = s.step(frame(9, 1.2))  # second bad frame in a row: the source restarted
+    assert out is not None and issues[0].reason == "seq_reset"
