@@ -109,6 +109,8 @@ class SolverConfig:
         recovery: lead an arm out of a lock-up (elbow far off while its wrist is tracked) through a
             position-level IK posture, in the wrists' null space (``recovery.LockupRecovery``); strict
             hierarchies only (hqp-nullspace, hqp-original), the others have no level to put it on.
+            Off by default: it removes the wave-left-hand lock-up (elbow 29.6 -> 7.4 cm max) but on
+            byebye_normal its detours raise the elbow max from 3.6 to 15.4 cm (h12s notes).
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``); off, or a profile without the table,
             leaves only the joint limits.
@@ -139,7 +141,7 @@ class SolverConfig:
     wrist_orientation_level: int = 2
     self_collision: bool = True
     elbow_orientation_cost: float = 0.3
-    recovery: bool = True
+    recovery: bool = False
 
     def __post_init__(self) -> None:
         from services.solver.qp import QP_BACKENDS

@@ -46,7 +46,7 @@ class RecoveryConfig:
         ik_tolerance: wrist and elbow error [m] the IK posture must reach to be used.
     """
 
-    trigger_error: float = 0.03
+    trigger_error: float = 0.05
     trigger_time: float = 0.02
     wrist_tolerance: float = 0.02
     release_error: float = 0.015

@@ -40,7 +40,7 @@ def test_wave_left_hand_lock_up_recovers(robot):
     _clip, targets = load_and_retarget(path, robot)
     targets = [t for t in targets if t.hdr.stamp <= UNTIL]
     out = {}
-    for name, solver in (("recovery", {}), ("plain", {"recovery": False})):
+    for name, solver in (("recovery", {"recovery": True}), ("plain", {"recovery": False})):
         tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", sim=False, solver=solver)
         el = 100 * np.linalg.norm(tr.ref_p["left_elbow"] - tr.kin_p["left_elbow"], axis=1)
         wr = 100 * np.linalg.norm(tr.ref_p["left_wrist"] - tr.kin_p["left_wrist"], axis=1)
