@@ -2,7 +2,7 @@
 
 Level k is solved over all n variables:
 
-    min ||A_k x - b_k||^2 + eps ||x||^2
+    min ||A_k x - b_k||^2 + eps ||x - mid||^2        (mid: the box centre)
     s.t. lb <= x <= ub                                  (5c)
          A_aug x = A_aug x*_{k-1}                       (5d)
 
@@ -54,46 +54,54 @@ class HqpOriginal(CascadeQp):
         ineq: Inequalities | None = None,
     ):
         n = lb.shape[0]
+        # Solved in y = x - mid (mid: the box centre), so that the damping pulls towards the centre of the
+        # box, as in HQP-Nullspace: with acceleration limits the box is a band around the last velocity.
+        mid = 0.5 * (lb + ub)
+        lo, hi = lb - mid, ub - mid
+        y = np.zeros(n)
         G = gl = gu = None
         if ineq is not None and ineq.rows:
-            G, gl, gu = ineq.G, np.full(ineq.rows, NO_BOUND), ineq.h
-        x = np.zeros(n)
+            # G x <= h in y: G y <= h - G mid
+            G, gl, gu = ineq.G, np.full(ineq.rows, NO_BOUND), ineq.h - ineq.G @ mid
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
             eps = self.level_eps(k)
+            c = b - A @ mid
             H = A.T @ A
             H.flat[:: n + 1] += max(eps, self.backend.regularization)
-            f = -(A.T @ b)
+            f = -(A.T @ c)
             E = e = None
             if k > 0:
                 split = split_row_space(np.vstack(As[:k]))
                 if split.rank >= n:
                     break  # higher levels pin every variable
                 E = np.ascontiguousarray(split.Q[:, : split.rank].T)
-                e = E @ x
-            r = self.backend.solve(H, f, lb=lb, ub=ub, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
+                e = E @ y
+            r = self.backend.solve(H, f, lb=lo, ub=hi, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
             if not r.ok:
                 # Degenerate stacks can be called infeasible by an active-set solver: one retry,
                 # better conditioned; the refinement below removes the extra regularisation's bias.
                 H.flat[:: n + 1] += RETRY_EPS
-                r2 = self.backend.solve(H, f, lb=lb, ub=ub, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
+                r2 = self.backend.solve(H, f, lb=lo, ub=hi, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
                 r2.iters += r.iters
                 r = r2
             iters += r.iters
             calls += 1
-            if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL) or (G is not None and not ineq.satisfied(r.x, 1e-7)):
+            if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL) or (G is not None and np.any(G @ r.x > gu + 1e-7)):
                 why = r.status if not r.ok else "QP left the box"
                 if k == 0:
+                    x = np.zeros(n)
                     return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
                 reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
                 break
             if not self.refine:
-                xs = r.x
+                ys = r.x
             elif G is None:
-                xs = refine_on_active_set(A, b, r.x, None, lb, ub, E, e, eps=eps)
+                ys = refine_on_active_set(A, c, r.x, None, lo, hi, E, e, eps=eps)
             else:
                 Gs = np.vstack((np.eye(n), G))
-                xs = refine_on_active_set(A, b, r.x, Gs, np.r_[lb, gl], np.r_[ub, gu], E, e, eps=eps)
-            x = clip(np.array(xs), lb, ub)
+                ys = refine_on_active_set(A, c, r.x, Gs, np.r_[lo, gl], np.r_[hi, gu], E, e, eps=eps)
+            y = clip(np.array(ys), lo, hi)
+        x = clip(mid + y, lb, ub)
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
