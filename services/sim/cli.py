@@ -6,8 +6,6 @@ import argparse
 import logging
 import os
 
-# MuJoCo reads MUJOCO_GL when first imported; EGL renders without a display.
-os.environ.setdefault("MUJOCO_GL", "egl")
 # Software GL (llvmpipe) would otherwise take every core away from the physics loop.
 os.environ.setdefault("LP_NUM_THREADS", "1")
 
@@ -62,6 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--lockstep-dt", type=float, default=0.01, help="simulated time per command in lock-step [s]")
     g.add_argument("--state-rate", type=float, default=200.0, help="RobotState rate in real time [Hz]")
+    g.add_argument(
+        "--state-on-command",
+        action="store_true",
+        help="realtime: also publish RobotState right after each applied command (latency benches)",
+    )
     g.add_argument("--render", default=None, metavar="DIR", help="render offscreen to DIR (sim.mp4 or PNG frames)")
     g.add_argument("--render-fps", type=float, default=10.0, help="rendered frames per simulated second")
     g.add_argument("--render-format", choices=("auto", "mp4", "png"), default="auto", help="mp4 needs ffmpeg")
@@ -69,17 +72,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    # MuJoCo picks its GL backend from MUJOCO_GL when first imported (below). EGL renders without a
+    # display; without --render no GL at all, so no OpenGL library is loaded (or missed) in vain.
+    os.environ.setdefault("MUJOCO_GL", "egl" if args.render else "disable")
     from services.sim.node import run
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         Keys().command(args.solver_id)
         if args.state_rate <= 0 or args.lockstep_dt <= 0:
             raise ValueError("--state-rate and --lockstep-dt must be positive")
         config = sim_config(args)
-        core = SimCore(args.robot, config)
+        if is_wheeled_profile(args.robot):
+            # A wheeled-legged arm robot (seed 002): its balancing core follows 7-D commands.
+            from services.wbc.sim_core import WheeledSimConfig, WheeledSimCore
+
+            core = WheeledSimCore(
+                args.robot,
+                WheeledSimConfig(config.timestep, config.watchdog, config.max_extrapolation, config.solver_id),
+            )
+        else:
+            core = SimCore(args.robot, config)
     except (ProfileError, ValueError, KeyError) as exc:
         log.error("%s", exc)
         return 2

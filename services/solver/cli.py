@@ -25,6 +25,7 @@ FLAGS = {
     "solver_id": {"flag": "--id", "help": "solver id: commands go to mimic/<session>/solver/<id>/command"},
     "wrist_orientation_cost": {"flag": "--orientation-weight"},
     "wrist_orientation_level": {"choices": (1, 2, 3)},
+    "posture_policy": {"metavar": "FILE"},
 }
 
 
@@ -50,10 +51,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     """Run the solver service."""
     from services.solver.node import config_from_args, run
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         config_from_args(args)
     except ValueError as exc:
         log.error("%s", exc)
         return 2
+    if args.robot and is_wheeled_profile(args.robot):
+        # A wheeled-legged arm robot (seed 002): its own planner, wbqp-accel, whatever --algo says.
+        from services.solver.wbqp_node import run as run_wheeled
+
+        return run_wheeled(args)
     return run(args)

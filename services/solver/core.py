@@ -38,10 +38,12 @@ from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_
 from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
-from shared.kinematics import Configuration, FrameTask, PositionTask, PostureTask
+from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
-from shared.targets import ELBOWS, WRISTS
+from shared.robot.profile import upper_arm_frame
+from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
 #: Algorithms with strict levels (a recovery level can sit between two of them).
 STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
@@ -94,6 +96,13 @@ class SolverConfig:
             the resync a robot that jumped (a sim restart).
         measured_timeout: measured joints older than this [s] no longer bound the command.
         infeasible_tol: level-1 residual above which the status is ``infeasible``.
+        posture_policy: learned posture policy file (``mimic posture train``). An arm whose elbow target
+            is invalid (a wrist-only source) then gets the policy's ``q̇₀`` on a level of its own below
+            the wrist tasks (gated: where the policy's virtual target disagrees with the real one,
+            the rest posture instead). With valid elbows it is unused.
+        wrist_only_posture_gain: gain [1/s] of the rest-posture task that takes that level for a
+            wrist-only arm without a policy (or with a closed gate).
+        mimicry_eta: η [1/s] of ``clik-mimicry`` (seed 004 eq. 3).
         wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
             2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
             posture. 3: wrist positions > elbows > wrist orientations (+ posture). 1: the paper's
@@ -142,6 +151,9 @@ class SolverConfig:
     self_collision: bool = True
     elbow_orientation_cost: float = 0.3
     recovery: bool = False
+    posture_policy: str | None = None
+    wrist_only_posture_gain: float = 2.0
+    mimicry_eta: float = 10.0
 
     def __post_init__(self) -> None:
         from services.solver.qp import QP_BACKENDS
@@ -218,6 +230,8 @@ class SolverCore:
             "smoothing_limited": 0,
             "resyncs": 0,
             "qp_calls": 0,
+            "policy_ticks": 0,
+            "gate_closed": 0,
         }
 
     def _build_levels(self, cfg: SolverConfig) -> None:
@@ -230,7 +244,7 @@ class SolverCore:
         self._levels_elbow_poses[1] = [*self._levels_elbow_poses[1], *self.elbow_orientation_tasks]
 
     def _build_base_levels(self, cfg: SolverConfig) -> None:
-        """The tasks and the priority levels of ``cfg.wrist_orientation_level``."""
+        """The tasks and the priority levels of ``cfg.wrist_orientation_level`` (and of seed 004's pieces)."""
         robot = self.robot
         self._gain = gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
         self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, gain) for e in ELBOWS]
@@ -240,22 +254,125 @@ class SolverCore:
             self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, cfg.wrist_orientation_cost, gain) for w in WRISTS]
             self.orientation_tasks: list[FrameTask] = []
             self.levels = [self.wrist_tasks, self.elbow_tasks, [self.posture_task]]
-            self._position_tasks = list(self.wrist_tasks)
-            return
-        # Wrist positions, elbows, then wrist orientations: position and swivel use the
-        # shoulder/elbow, orientation what is left (mostly the wrist joints), so
-        # independently mapped orientations cannot spoil the wrist and elbow positions.
-        # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
-        # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
-        self.wrist_tasks = [PositionTask(w, cfg.wrist_position_cost, gain) for w in WRISTS]
-        og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
-        self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
-        self._position_tasks = list(self.wrist_tasks)
-        if cfg.wrist_orientation_level == 2:
-            # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
-            self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
         else:
-            self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
+            # Wrist positions, elbows, then wrist orientations: position and swivel use the
+            # shoulder/elbow, orientation what is left (mostly the wrist joints), so
+            # independently mapped orientations cannot spoil the wrist and elbow positions.
+            # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
+            # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
+            self.wrist_tasks = [PositionTask(w, cfg.wrist_position_cost, gain) for w in WRISTS]
+            og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
+            self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
+            if cfg.wrist_orientation_level == 2:
+                # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
+                self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
+            else:
+                self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
+        self._setup_posture(robot, cfg, gain)
+        self._position_tasks = list(self.wrist_tasks)
+
+    def _setup_posture(self, robot: RobotModel, cfg: SolverConfig, gain: float) -> None:
+        """Seed 004's pieces: upper-arm alignment (clik-mimicry) and the wrist-only posture level."""
+        from services.posture.features import action_joints, arm_joints
+
+        self.arm_idx = {s: arm_joints(robot, s) for s in SIDES}
+        self.act_idx = {s: action_joints(robot, s) for s in SIDES}
+        #: side -> task on the level below the wrists for a wrist-only arm (policy q̇₀ or rest pull)
+        self.slot_tasks = {s: JointVelocityTask(self.arm_idx[s], self.n) for s in SIDES}
+        self.policy = None
+        if cfg.posture_policy:
+            from services.posture.policy import PolicyError, PosturePolicy
+
+            self.policy = PosturePolicy.load(cfg.posture_policy)
+            if self.policy.robot != robot.profile.name:
+                raise PolicyError(f"posture policy is for robot {self.policy.robot!r}, not {robot.profile.name!r}")
+        rest = robot.frame_poses(robot.q_rest, names=WRISTS)
+        self._q_ref = {s: matrix_to_quat(rest[f"{s}_wrist"][1]) for s in SIDES}
+        #: side -> latest operator upper-arm orientation (3, 3), None when the last targets had none
+        self.upper_arm: dict[str, np.ndarray | None] = dict.fromkeys(SIDES)
+        self.align_tasks: dict[str, AlignmentTask] = {}
+        self._layouts: dict[tuple[tuple[str, ...], int], list] = {}
+        self.wrist_only: tuple[str, ...] = ()
+        self.last_gate: dict[str, bool] = {}
+        if cfg.algo == "clik-mimicry":
+            # The paper's controller: full wrist poses as the end-effector task (eq. 2), the upper-arm
+            # alignment (eqs. 3-6) as q̇₀; a wrist-only arm gets the posture level's velocities instead.
+            self.align_tasks = {s: AlignmentTask(upper_arm_frame(robot.profile, s), self.act_idx[s]) for s in SIDES}
+            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 1.0, gain) for w in WRISTS]
+            self.orientation_tasks = []
+            self.levels = [self.wrist_tasks, [*self.align_tasks.values()]]
+            self.algorithm.eta = cfg.mimicry_eta
+
+    def _levels_for(self, wrist_only: tuple[str, ...]) -> list:
+        """Levels with the wrist-only arms' elbow tasks removed and their posture tasks one level below the
+        wrist tasks (just above the rest posture); cached per set of wrist-only arms."""
+        key = (wrist_only, id(self.levels))  # the level variant: elbow orientations on or off
+        levels = self._layouts.get(key)
+        if levels is None:
+            slot = [self.slot_tasks[s] for s in wrist_only]
+            if self.config.algo == "clik-mimicry":
+                levels = [self.levels[0], [*self.levels[1], *slot]]
+            else:
+                drop = {id(t) for t in self.elbow_tasks if side_of(t.frame) in wrist_only}
+                kept = [[t for t in lv if id(t) not in drop] for lv in self.levels]
+                kept = [lv for lv in kept if lv]
+                levels = [*kept[:-1], slot, kept[-1]] if slot else kept
+            self._layouts[key] = levels
+        return levels
+
+    def _posture_level(self, t: float) -> tuple[str, ...]:
+        """Wrist-only arms at time t, with their posture tasks set (policy q̇₀ or the rest pull)."""
+        wo = []
+        for s in SIDES:
+            if self.config.algo == "clik-mimicry":
+                task = self.align_tasks[s]
+                if self.upper_arm[s] is not None:
+                    task.set_target(self.upper_arm[s], check=False)
+                    continue
+                task.clear()
+                wo.append(s)
+                continue
+            e = self.tracker.sample(f"{s}_elbow", t)
+            if e is None or (e.held and self.policy is not None):
+                wo.append(s)
+        if not wo:
+            return ()
+        q = self.q_raw
+        gate = dict.fromkeys(wo, False)
+        out = None
+        if self.policy is not None:
+            S = np.zeros((2, 14))
+            have = True
+            for i, s in enumerate(SIDES):
+                w = self.tracker.sample(f"{s}_wrist", t)
+                if w is None:
+                    have = False
+                    break
+                Q = matrix_to_quat(w.R)
+                if Q @ self._q_ref[s] < 0.0:
+                    Q = -Q
+                S[i, :4] = Q
+                S[i, 4:7] = w.p
+                S[i, 7:] = q[self.arm_idx[s]]
+            if have:
+                out = self.policy.act(S)
+                self.counts["policy_ticks"] += 1
+                for i, s in enumerate(SIDES):
+                    if s in gate:
+                        gate[s] = bool(out.gate[i])
+        for i, s in enumerate(SIDES):
+            if s not in gate:
+                continue
+            v = np.zeros(len(self.arm_idx[s]))
+            if gate[s]:
+                v[: out.qd0.shape[1]] = out.qd0[i]
+            else:
+                if self.policy is not None:
+                    self.counts["gate_closed"] += 1
+                v = self.config.wrist_only_posture_gain * (self.robot.q_rest[self.arm_idx[s]] - q[self.arm_idx[s]])
+            self.slot_tasks[s].set_velocity(v)
+        self.last_gate = gate
+        return tuple(wo)
 
     # ------------------------------------------------------------------ state
 
@@ -325,15 +442,19 @@ class SolverCore:
         dt = self._elapsed(t)
         if targets is not None:
             self.tracker.update(targets, t)
+            for s in SIDES:
+                q_m = targets.upper_arms.get(s)
+                self.upper_arm[s] = None if q_m is None else quat_to_matrix(q_m)
         self.counts["ticks"] += 1
         if not self.tracker.started:
             # Hold the pose we started from until the first targets arrive.
             self.qd_out[:] = 0.0
             return self._command("init", [], 0, 0, "waiting for targets", t_start, t)
         self.configuration.update(self.q_raw)
+        self.wrist_only = self._posture_level(t)
         held = self._set_targets(t)
         self._shape_gains()
-        levels = self.levels
+        levels = self._levels_for(self.wrist_only)
         if self.recovery is not None and self.recovery.update(
             self.configuration, self.wrist_tasks, self.elbow_tasks, t
         ):
@@ -448,7 +569,8 @@ class SolverCore:
         samples = {name: self.tracker.sample(name, t) for name in (*WRISTS, *ELBOWS)}
         missing: list[str] = []
         held: list[str] = []
-        for task in (*self.wrist_tasks, *self.elbow_tasks):
+        elbows = [t for t in self.elbow_tasks if side_of(t.frame) not in self.wrist_only]  # wrist-only: posture level
+        for task in (*self.wrist_tasks, *elbows):
             s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)

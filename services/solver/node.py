@@ -9,6 +9,7 @@ target arrival with ``--trigger event``.
 from __future__ import annotations
 
 import argparse
+import logging
 import time
 
 import numpy as np
@@ -130,7 +131,13 @@ def measured_joints(state: RobotState | None, joint_map: JointMap, solver_id: st
 def run(args: argparse.Namespace) -> int:
     """Run the solver service until SIGINT/SIGTERM."""
     robot = build_robot_model(args.robot, with_waist=not args.no_waist)
-    core = SolverCore(robot, config_from_args(args))
+    from services.posture.policy import PolicyError
+
+    try:
+        core = SolverCore(robot, config_from_args(args))
+    except PolicyError as exc:
+        logging.getLogger("mimic.solve").error("%s", exc)
+        return 2
     joint_map = JointMap(robot.joint_names)
     with ServiceRunner("solver", args, instance=args.solver_id) as svc:
         log = svc.log

@@ -95,3 +95,18 @@ def test_wqp_weights_trade_elbow_against_wrist(robot):
     }
     assert m[0.01]["elbow_err_cm"]["mean"] > m[1.0]["elbow_err_cm"]["mean"] + 0.5
     assert m[0.01]["wrist_err_cm"]["mean"] < m[1.0]["wrist_err_cm"]["mean"]
+
+
+def test_wrist_only_run_hides_the_elbows_from_the_solver_but_scores_them(robot):
+    """The solver gets wrists only; the errors are still against the full targets' elbows."""
+    from services.evaluation.runner import wrist_only_targets
+
+    targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE))
+    fed = wrist_only_targets(targets)
+    assert not any(t.targets["left_elbow"].valid for t in fed) and all(t.targets["left_wrist"].valid for t in fed)
+    full = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
+    wo_tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", wrist_only=True)
+    wo = trace_metrics(wo_tr, robot)
+    assert wo_tr.ref_ok["left_elbow"].all()  # scored on every tick
+    assert wo["wrist_err_cm"]["mean"] < 0.02  # the wrists are tracked as before
+    assert wo["elbow_err_cm"]["mean"] > 10 * full["elbow_err_cm"]["mean"]  # the elbows are not seen
