@@ -52,8 +52,9 @@ HUMAN_BONES: tuple[str, ...] = (
     "head",
     *(f"{side}_{bone}" for side in SIDES for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
 )
-#: Command status values a solver may report.
-COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init")
+#: Command status values a solver may report (``collision``: the wrists are held at the safety
+#: distance from the body, their target being inside it or behind it).
+COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init", "collision")
 
 
 class MessageError(ValueError):

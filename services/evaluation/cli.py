@@ -89,8 +89,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--paper",
         action="store_true",
-        help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows, eq. 4 against "
-        "the rest pose",
+        help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows with their "
+        "orientations (the elbow pose) on level 2, eq. 4 against the rest pose",
     )
     p.add_argument(
         "--wrist-only",
@@ -182,8 +182,9 @@ def _compare_summary(clips: list[dict]) -> dict:
 
 def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
     """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
-    ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows and eq. 4 against the rest
-    pose. The retargeter otherwise runs with the service's own settings (``RetargetConfig``)."""
+    ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows with their orientations on
+    level 2 (the elbow pose) and eq. 4 against the rest pose. The retargeter otherwise runs with the
+    service's own settings (``RetargetConfig``)."""
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algos if a not in ALGORITHMS and a != MINK]
     if unknown:
@@ -201,12 +202,14 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     if getattr(args, "posture_policy", None) and not wrist_only:
         raise SystemExit("--posture-policy is used with --wrist-only (with full targets the solver does not use it)")
     oref = getattr(args, "orientation_reference", None) or ("posture" if wrist_only else defaults.orientation_reference)
-    if getattr(args, "paper", False):
+    paper = getattr(args, "paper", False)
+    if paper:
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
-    retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref}
+    # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
+    retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     return algos, solver, wqp_weights, retarget
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from services.solver.inequalities import Inequalities
 from services.solver.levels import LevelStack
 from shared.kinematics import Configuration, Task
 
@@ -102,7 +103,12 @@ class Algorithm(ABC):
         return self._stack
 
     def solve(
-        self, configuration: Configuration, levels: Sequence[Sequence[Task]], lb: np.ndarray, ub: np.ndarray
+        self,
+        configuration: Configuration,
+        levels: Sequence[Sequence[Task]],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
     ) -> Solution:
         """Joint velocities (n,) [rad/s] from the tasks evaluated at the configuration.
 
@@ -110,10 +116,14 @@ class Algorithm(ABC):
             configuration: current robot configuration (kinematics up to date).
             levels: tasks by priority, highest first (at least one task on the first level).
             lb, ub: (n,) joint-velocity bounds [rad/s] with lb <= ub, hard at every level.
+            ineq: optional rows ``G qd <= h`` (self-collision dampers), hard at every level of the QP
+                algorithms; the clamping baselines (clik-nullspace, dls) cannot honour them.
         """
         if not levels or not levels[0]:
             raise ValueError("at least one level with one task is needed")
         As, bs = self.stack(levels, configuration.nv).fill(configuration)
+        if ineq is not None and ineq.rows:
+            return self.solve_matrices(As, bs, lb, ub, ineq)
         return self.solve_matrices(As, bs, lb, ub)
 
     @abstractmethod
@@ -123,10 +133,12 @@ class Algorithm(ABC):
         bs: Sequence[np.ndarray],
         lb: np.ndarray,
         ub: np.ndarray,
+        ineq: Inequalities | None = None,
     ) -> Solution:
-        """Solve levels ``min ||A_k x - b_k||`` (priority order) with ``lb <= x <= ub``.
+        """Solve levels ``min ||A_k x - b_k||`` (priority order) with ``lb <= x <= ub`` and ``G x <= h``.
 
         Args:
             As: per level (m_k, n) task matrices. bs: per level (m_k,) targets.
             lb, ub: (n,) bounds with lb <= ub.
+            ineq: optional inequality rows (ignored by the clamping baselines).
         """

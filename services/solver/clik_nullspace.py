@@ -42,7 +42,10 @@ class ClikNullspace(Algorithm):
         self.eta = eta
         self.damping = damping
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
+    ):
+        # ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
         split = split_row_space(As[0])
         qd = split.lstsq(bs[0], self.damping)
         if len(As) > 1 and self.eta > 0:

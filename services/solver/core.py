@@ -32,7 +32,10 @@ import numpy as np
 
 from services.solver.base import Solution
 from services.solver.bounds import JointBounds
+from services.solver.collision import SelfCollisionAvoidance
+from services.solver.inequalities import Inequalities
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
+from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
@@ -42,6 +45,8 @@ from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix
 from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
+#: Algorithms with strict levels (a recovery level can sit between two of them).
+STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
 #: Shortest step [s] a tick accounts for (ticks closer than this still move by it: 1e-4 s at vmax = 4e-4 rad).
@@ -107,6 +112,17 @@ class SolverConfig:
             best but the G1's wrist frame (4.6 cm past the pitch axis) leaves the orientations
             about one free joint, 30 deg mean error; with 2 orientations are within 3 deg for
             about 0.6 cm more elbow error.
+        elbow_orientation_cost: weight [1/rad] of the elbow orientation rows, on level 2 beside the
+            elbow positions (seed 000's elbow pose), used while the elbow targets carry
+            ``use_rotation`` (retarget ``--elbow-rotation``; ``mimic eval --paper``).
+        recovery: lead an arm out of a lock-up (elbow far off while its wrist is tracked) through a
+            position-level IK posture, in the wrists' null space (``recovery.LockupRecovery``); strict
+            hierarchies only (hqp-nullspace, hqp-original), the others have no level to put it on.
+            Off by default: it removes the wave-left-hand lock-up (elbow 29.6 -> 7.4 cm max) but on
+            byebye_normal its detours raise the elbow max from 3.6 to 15.4 cm (h12s notes).
+        self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
+            every level (``collision.SelfCollisionAvoidance``); off, or a profile without the table,
+            leaves only the joint limits.
     """
 
     algo: str = "hqp-nullspace"
@@ -132,6 +148,9 @@ class SolverConfig:
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
+    self_collision: bool = True
+    elbow_orientation_cost: float = 0.3
+    recovery: bool = False
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     mimicry_eta: float = 10.0
@@ -185,6 +204,11 @@ class SolverCore:
         m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
         self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.collision = (
+            SelfCollisionAvoidance(robot) if cfg.self_collision and robot.profile.collision is not None else None
+        )
+        self._ineq: Inequalities | None = None
+        self.recovery = LockupRecovery(robot) if cfg.recovery and cfg.algo in STRICT_ALGORITHMS else None
         self.smoother = (
             QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks, limits=self.limits) if cfg.smoothing else None
         )
@@ -211,6 +235,15 @@ class SolverCore:
         }
 
     def _build_levels(self, cfg: SolverConfig) -> None:
+        """The tasks and the priority levels; the variant with elbow orientations on level 2."""
+        self._build_base_levels(cfg)
+        og = self._gain if cfg.orientation_gain is None else min(cfg.orientation_gain, self._gain)
+        self.elbow_orientation_tasks = [FrameTask(e, 0.0, cfg.elbow_orientation_cost, og) for e in ELBOWS]
+        self._levels_position_elbows = self.levels
+        self._levels_elbow_poses = [list(tasks) for tasks in self.levels]
+        self._levels_elbow_poses[1] = [*self._levels_elbow_poses[1], *self.elbow_orientation_tasks]
+
+    def _build_base_levels(self, cfg: SolverConfig) -> None:
         """The tasks and the priority levels of ``cfg.wrist_orientation_level`` (and of seed 004's pieces)."""
         robot = self.robot
         self._gain = gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
@@ -258,7 +291,7 @@ class SolverCore:
         #: side -> latest operator upper-arm orientation (3, 3), None when the last targets had none
         self.upper_arm: dict[str, np.ndarray | None] = dict.fromkeys(SIDES)
         self.align_tasks: dict[str, AlignmentTask] = {}
-        self._layouts: dict[tuple[str, ...], list] = {}
+        self._layouts: dict[tuple[tuple[str, ...], int], list] = {}
         self.wrist_only: tuple[str, ...] = ()
         self.last_gate: dict[str, bool] = {}
         if cfg.algo == "clik-mimicry":
@@ -273,7 +306,8 @@ class SolverCore:
     def _levels_for(self, wrist_only: tuple[str, ...]) -> list:
         """Levels with the wrist-only arms' elbow tasks removed and their posture tasks one level below the
         wrist tasks (just above the rest posture); cached per set of wrist-only arms."""
-        levels = self._layouts.get(wrist_only)
+        key = (wrist_only, id(self.levels))  # the level variant: elbow orientations on or off
+        levels = self._layouts.get(key)
         if levels is None:
             slot = [self.slot_tasks[s] for s in wrist_only]
             if self.config.algo == "clik-mimicry":
@@ -283,7 +317,7 @@ class SolverCore:
                 kept = [[t for t in lv if id(t) not in drop] for lv in self.levels]
                 kept = [lv for lv in kept if lv]
                 levels = [*kept[:-1], slot, kept[-1]] if slot else kept
-            self._layouts[wrist_only] = levels
+            self._layouts[key] = levels
         return levels
 
     def _posture_level(self, t: float) -> tuple[str, ...]:
@@ -420,14 +454,49 @@ class SolverCore:
         self.wrist_only = self._posture_level(t)
         held = self._set_targets(t)
         self._shape_gains()
+        levels = self._levels_for(self.wrist_only)
+        if self.recovery is not None and self.recovery.update(
+            self.configuration, self.wrist_tasks, self.elbow_tasks, t
+        ):
+            # Right below the wrists: the arm moves to the IK posture without touching level 1.
+            levels = [levels[0], [self.recovery.task], *levels[1:]]
         lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
-        sol = self.algorithm.solve(self.configuration, self._levels_for(self.wrist_only), lb, ub)
+        ineq = self._ineq = self._collision_rows(lb, ub)
+        sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
+        if not sol.ok and ineq is not None and ineq.rows:
+            # Rows each feasible but not together (two pairs braking against each other): no pair may
+            # approach faster than braking every joint would make it.
+            ineq.relax_to(np.minimum(np.maximum(0.0, lb), ub))
+            sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
         self.counts["qp_calls"] += sol.qp_calls
         qd, reason = self._checked_velocity(sol, lb, ub)
         status, reason = self._status(sol, held, reason)
         self._integrate(qd, dt)
         self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
+
+    def _collision_rows(self, lb: np.ndarray, ub: np.ndarray) -> Inequalities | None:
+        """Self-collision damper rows at q_raw, each one feasible within this step's box (None: off)."""
+        if self.collision is None:
+            return None
+        ineq = self.collision.rows(self.q_raw)
+        ineq.reachable_within(lb, ub)
+        return ineq
+
+    def _collision_reason(self, qd: np.ndarray) -> str:
+        """Why the wrists stop short: the closest pair whose damper holds them back ('' if none does)."""
+        ineq = self._ineq
+        if ineq is None or not ineq.rows:
+            return ""
+        active = np.flatnonzero(ineq.G @ qd >= ineq.h - 1e-6)
+        if not active.size:
+            return ""
+        pd = self.collision.close[int(active[0])]
+        a, b = self.collision.body_names(pd)
+        return (
+            f"self-collision: {a} held {100 * pd.distance:.1f} cm from {b} "
+            f"(safety distance {100 * self.collision.d_s:.1f} cm); the target is inside the body or behind it"
+        )
 
     def _checked_velocity(self, sol: Solution, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray | None, str]:
         """The solution's qd within [lb, ub], or None when it failed; the reason text so far."""
@@ -448,6 +517,9 @@ class SolverCore:
         if held:
             return "held", "; ".join([*held, reason] if reason else held)
         if sol.residuals and sol.residuals[0] > self.config.infeasible_tol:
+            blocked = self._collision_reason(sol.qd)
+            if blocked:
+                return "collision", f"{blocked}; {reason}" if reason else blocked
             why = (
                 f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {self.config.infeasible_tol:g}: "
                 "target out of reach or faster than the joint limits allow"
@@ -518,6 +590,17 @@ class SolverCore:
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)
             task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+        elbow_rotation = False
+        for task in self.elbow_orientation_tasks:
+            s = samples[task.frame]
+            if s is None:
+                task.set_target_from_configuration(conf)
+                continue
+            task.set_target(s.p, s.R, s.v, s.w, check=False)
+            task.set_orientation_cost(self.config.elbow_orientation_cost if s.use_rotation else 0.0)
+            elbow_rotation |= s.use_rotation
+        # Elbow orientation rows only while a target asks for them: the plain levels keep their size.
+        self.levels = self._levels_elbow_poses if elbow_rotation else self._levels_position_elbows
         why: list[str] = []
         if self.tracker.stale(t):
             why.append(f"targets stale (none for {self.tracker.timeout:g} s): holding")

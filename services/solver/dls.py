@@ -34,7 +34,10 @@ class DampedLeastSquares(Algorithm):
             raise ValueError(f"damping must be > 0, got {damping}")
         self.damping = damping
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
+    ):
+        # ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
         A, b = As[0], bs[0]
         H = A.T @ A
         H.flat[:: H.shape[0] + 1] += self.damping

@@ -37,6 +37,7 @@ from services.solver.base import (
     within,
 )
 from services.solver.cascade import RETRY_EPS, CascadeQp
+from services.solver.inequalities import Inequalities, level_rows
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
@@ -61,8 +62,17 @@ class HqpNullspace(CascadeQp):
         super().__init__(backend, eps, refine)
         self.shortcut = shortcut
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self,
+        As: Sequence[np.ndarray],
+        bs: Sequence[np.ndarray],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
+    ):
         n = lb.shape[0]
+        if ineq is not None and not ineq.rows:
+            ineq = None
         x = np.zeros(n)
         # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
         # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
@@ -88,10 +98,11 @@ class HqpNullspace(CascadeQp):
             if self.shortcut:
                 w = _damped_lstsq(M, c, self.level_eps(k)) if split is None else split.lstsq(c, self.level_eps(k))
                 xt = base + (w if Z is None else Z @ w)
-                if not within(xt, lb, ub):
+                if not within(xt, lb, ub) or (ineq is not None and not ineq.satisfied(xt)):
                     xt = None
             if xt is None:
-                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k)
+                rows = level_rows(ineq, Z, base, lb - base, ub - base)
+                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k, rows)
                 iters += its
                 calls += 1
                 if w is None:
@@ -101,8 +112,9 @@ class HqpNullspace(CascadeQp):
                     break
                 xt = base + (w if Z is None else Z @ w)
                 # Within the QP's own tolerance: snap onto the box.
-                if not within(xt, lb, ub, QP_BOUND_TOL):
-                    reason = f"level {k + 1} QP left the box by {violation(xt, lb, ub):.2e}"
+                if not within(xt, lb, ub, QP_BOUND_TOL) or (ineq is not None and not ineq.satisfied(xt, QP_BOUND_TOL)):
+                    gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
+                    reason = f"level {k + 1} QP left the box by {gap:.2e}"
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, reason)
                     break
@@ -114,8 +126,11 @@ class HqpNullspace(CascadeQp):
             Z = N if Z is None else Z @ N
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
 
-    def _level_qp(self, M, c, Z, lo, hi, k):
+    def _level_qp(self, M, c, Z, lo, hi, k, rows=(None, None, None)):
         """QP of one level in z: ``min ||M z - c||^2 + eps ||z||^2``, ``lo <= Z z <= hi`` (Z None = identity).
+
+        ``rows``: the box and the inequality rows as one stack ``gl <= G z <= gu`` (``level_rows``), or
+        Nones when there are no inequality rows.
 
         A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
         once with ``RETRY_EPS`` regularisation and refined on its active set, which removes that bias again.
@@ -130,14 +145,21 @@ class HqpNullspace(CascadeQp):
             H = M.T @ M
             H.flat[:: H.shape[0] + 1] += eps
             f = -(M.T @ c)
-            if Z is None:
+            G, gl, gu = rows
+            if G is not None:
+                r = self.backend.solve(H, f, G=G, gl=gl, gu=gu, key=f"ns{k}g")
+            elif Z is None:
                 r = self.backend.solve(H, f, lb=lo, ub=hi, key=f"ns{k}")
             else:
                 r = self.backend.solve(H, f, G=Z, gl=lo, gu=hi, key=f"ns{k}")
             iters += r.iters
             status = r.status
             if r.ok:
-                return (refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
+                if not refine:
+                    return r.x, iters, status
+                if G is not None:
+                    return refine_on_active_set(M, c, r.x, G, gl, gu, eps=eps0), iters, status
+                return refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0), iters, status
         return None, iters, status
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
+from services.solver.inequalities import NO_BOUND, Inequalities
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
@@ -44,13 +45,24 @@ class HqpOriginal(CascadeQp):
     def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, refine: bool = True):
         super().__init__(backend, eps, refine)
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self,
+        As: Sequence[np.ndarray],
+        bs: Sequence[np.ndarray],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
+    ):
         n = lb.shape[0]
         # Solved in y = x - mid (mid: the box centre), so that the damping pulls towards the centre of the
         # box, as in HQP-Nullspace: with acceleration limits the box is a band around the last velocity.
         mid = 0.5 * (lb + ub)
         lo, hi = lb - mid, ub - mid
         y = np.zeros(n)
+        G = gl = gu = None
+        if ineq is not None and ineq.rows:
+            # G x <= h in y: G y <= h - G mid
+            G, gl, gu = ineq.G, np.full(ineq.rows, NO_BOUND), ineq.h - ineq.G @ mid
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
@@ -66,24 +78,30 @@ class HqpOriginal(CascadeQp):
                     break  # higher levels pin every variable
                 E = np.ascontiguousarray(split.Q[:, : split.rank].T)
                 e = E @ y
-            r = self.backend.solve(H, f, lb=lo, ub=hi, E=E, e=e, key=f"orig{k}")
+            r = self.backend.solve(H, f, lb=lo, ub=hi, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
             if not r.ok:
                 # Degenerate stacks can be called infeasible by an active-set solver: one retry,
                 # better conditioned; the refinement below removes the extra regularisation's bias.
                 H.flat[:: n + 1] += RETRY_EPS
-                r2 = self.backend.solve(H, f, lb=lo, ub=hi, E=E, e=e, key=f"orig{k}")
+                r2 = self.backend.solve(H, f, lb=lo, ub=hi, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
                 r2.iters += r.iters
                 r = r2
             iters += r.iters
             calls += 1
-            if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL):
+            if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL) or (G is not None and np.any(G @ r.x > gu + 1e-7)):
                 why = r.status if not r.ok else "QP left the box"
                 if k == 0:
                     x = np.zeros(n)
                     return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
                 reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
                 break
-            ys = refine_on_active_set(A, c, r.x, None, lo, hi, E, e, eps=eps) if self.refine else r.x
+            if not self.refine:
+                ys = r.x
+            elif G is None:
+                ys = refine_on_active_set(A, c, r.x, None, lo, hi, E, e, eps=eps)
+            else:
+                Gs = np.vstack((np.eye(n), G))
+                ys = refine_on_active_set(A, c, r.x, Gs, np.r_[lo, gl], np.r_[hi, gu], E, e, eps=eps)
             y = clip(np.array(ys), lo, hi)
         x = clip(mid + y, lb, ub)
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)

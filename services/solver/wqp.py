@@ -29,6 +29,7 @@ from scipy.linalg import lapack
 
 from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
 from services.solver.cascade import CascadeQp
+from services.solver.inequalities import NO_BOUND, Inequalities
 from services.solver.qp import QpBackend
 
 
@@ -57,8 +58,16 @@ class WeightedQp(CascadeQp):
         self.level_weights = tuple(float(w) for w in level_weights)
         self.shortcut = shortcut
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self,
+        As: Sequence[np.ndarray],
+        bs: Sequence[np.ndarray],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
+    ):
         n = lb.shape[0]
+        rows = ineq is not None and ineq.rows > 0
         H = np.zeros((n, n))
         f = np.zeros(n)
         for k, (A, b) in enumerate(zip(As, bs)):
@@ -68,10 +77,14 @@ class WeightedQp(CascadeQp):
         H.flat[:: n + 1] += self.level_eps(0)
         if self.shortcut:
             _c, x, info = lapack.dposv(H, -f)
-            if info == 0 and within(x, lb, ub):
+            if info == 0 and within(x, lb, ub) and (not rows or ineq.satisfied(x)):
                 return Solution(x, level_residuals(As, bs, x), True, 0, 0, count_active(x, lb, ub))
-        r = self.backend.solve(H, f, lb=lb, ub=ub, key="wqp")
-        if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL):
+        if rows:
+            low = np.full(ineq.rows, NO_BOUND)
+            r = self.backend.solve(H, f, lb=lb, ub=ub, G=ineq.G, gl=low, gu=ineq.h, key="wqpg")
+        else:
+            r = self.backend.solve(H, f, lb=lb, ub=ub, key="wqp")
+        if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL) or (rows and not ineq.satisfied(r.x, QP_BOUND_TOL)):
             why = r.status if not r.ok else "QP left the box"
             zero = np.zeros(n)
             return Solution(zero, level_residuals(As, bs, zero), False, r.iters, 1, 0, f"QP: {why}")

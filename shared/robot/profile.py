@@ -44,6 +44,26 @@ class ArmJoints:
 
 
 @dataclass(frozen=True)
+class CollisionSpec:
+    """Which links must keep clear of which, read from the profile's ``[collision]`` table.
+
+    Attributes:
+        groups: group name -> robot links (URDF link names) whose collision geometry it holds.
+        pairs: (group, group) pairs whose links are kept apart; every link of one against every link
+            of the other.
+        safety_distance: d_s [m], the distance a pair never comes closer than.
+        influence_distance: d_i [m] (> d_s), below which a pair's approach speed is limited.
+        damper_speed: xi [m/s], the approach speed allowed at d_i; it falls linearly to 0 at d_s.
+    """
+
+    groups: dict[str, tuple[str, ...]]
+    pairs: tuple[tuple[str, str], ...]
+    safety_distance: float = 0.015
+    influence_distance: float = 0.08
+    damper_speed: float = 1.0
+
+
+@dataclass(frozen=True)
 class RobotProfile:
     """Everything the services need to know about one robot.
 
@@ -62,6 +82,8 @@ class RobotProfile:
         actuators: MuJoCo servo parameters (kp, kv, armature).
         arms_out: joint -> offset [rad] from rest holding the arms clear of the body (centre
             of the servo tracking sine).
+        collision: self-collision pairs the solver keeps apart (None: the profile has no
+            ``[collision]`` table, no self-collision avoidance).
     """
 
     name: str
@@ -79,6 +101,7 @@ class RobotProfile:
     actuators: dict[str, float] = field(default_factory=dict)
     arms_out: dict[str, float] = field(default_factory=dict)
     source: Path | None = None
+    collision: CollisionSpec | None = None
 
     def controlled_joints(self, with_waist: bool = True) -> tuple[str, ...]:
         """Controlled joints in solver order: waist (if asked) then each arm in ``SIDES`` order.
@@ -146,6 +169,7 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
             actuators={k: float(v) for k, v in raw.get("actuators", {}).items()},
             arms_out={k: float(v) for k, v in raw.get("arms_out", {}).items()},
             source=path,
+            collision=_collision(raw["collision"], path) if "collision" in raw else None,
         )
     except KeyError as exc:
         raise ProfileError(f"{path}: missing field {exc}") from None
@@ -169,6 +193,29 @@ def _arm(raw: dict, where: str, path: Path) -> ArmJoints:
     if elbow not in joints:
         raise ProfileError(f"{path}: {where} elbow {elbow!r} is not one of its joints {list(joints)}")
     return ArmJoints(joints, elbow)
+
+
+def _collision(raw: dict, path: Path) -> CollisionSpec:
+    """The ``[collision]`` table: groups of links, pairs of groups, damper distances and speed."""
+    groups = {str(k): tuple(str(x) for x in v) for k, v in raw["groups"].items()}
+    pairs = []
+    for pair in raw["pairs"]:
+        if len(pair) != 2 or any(g not in groups for g in pair):
+            raise ProfileError(f"{path}: [collision] pair {pair!r} must name two of the groups {sorted(groups)}")
+        pairs.append((str(pair[0]), str(pair[1])))
+    spec = CollisionSpec(
+        groups,
+        tuple(pairs),
+        _number(raw, "safety_distance", "[collision]", CollisionSpec.safety_distance),
+        _number(raw, "influence_distance", "[collision]", CollisionSpec.influence_distance),
+        _number(raw, "damper_speed", "[collision]", CollisionSpec.damper_speed),
+    )
+    if not 0.0 <= spec.safety_distance < spec.influence_distance or not spec.damper_speed > 0.0:
+        raise ProfileError(
+            f"{path}: [collision] needs 0 <= safety_distance < influence_distance and damper_speed > 0, got "
+            f"{spec.safety_distance}, {spec.influence_distance}, {spec.damper_speed}"
+        )
+    return spec
 
 
 def _validate(prof: RobotProfile, path: Path) -> None:

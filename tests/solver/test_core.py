@@ -139,7 +139,7 @@ def test_start_mid_stream_from_measured_state_without_jump(request, robot_fixtur
     target_q = robot.random_configurations(1, rng)[0]
     cmd = core.step(targets_from_q(robot, target_q), q_meas, 10.0)
     assert np.all(np.abs(cmd.q - q_meas) <= robot.vmax * DT + 1e-9)
-    assert cmd.status in ("ok", "infeasible")
+    assert cmd.status in ("ok", "infeasible", "collision")  # a random pose may sit in the body
 
 
 def test_holds_start_pose_until_targets_arrive(robot17):

@@ -1,0 +1,186 @@
+"""Lock-up recovery: leave a wrong posture the velocity-level hierarchy cannot leave by itself.
+
+A strict velocity-level HQP is a local method: when an arm reaches its wrist target with joints
+pinned at their limits (the wave-left-hand clips at 7 s: shoulder roll and yaw at their stops),
+the elbow level's own gradient points into those stops, and the only freedom left to hold the
+wrist is the waist, which swings across its range while the elbow error grows to 30 cm. The
+elbow target is reachable with the wrist target all along, from another arm posture.
+
+Recovery, per arm: when its elbow (level 2) stays more than ``trigger_error`` off for
+``trigger_time`` while the wrist is tracked, a position-level IK (damped Gauss-Newton on that
+arm's wrist and elbow positions, over the arm's joints and the waist, pulled towards the rest
+pose in its null space) looks for a posture meeting both targets. If it finds one, a joint-space
+task towards it joins the hierarchy right below the wrists: the arm moves to it inside the
+wrists' null space, within the joint bounds (velocity, acceleration, self-collision), so level 1
+keeps its strict priority; the elbow level follows below. The IK posture is refreshed as the
+targets move, and the recovery ends when the elbow is back within ``release_error`` or after
+``max_time``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from shared.kinematics import Configuration, PostureTask, Task
+from shared.robot.pinocchio_model import RobotModel
+from shared.targets import ELBOWS, SIDES, WRISTS
+
+
+@dataclass
+class RecoveryConfig:
+    """Recovery settings.
+
+    Attributes:
+        trigger_error: elbow error [m] that counts as off.
+        trigger_time: how long [s] the elbow must stay off before recovering.
+        wrist_tolerance: the wrist error [m] under which the wrist counts as tracked (a recovery
+            only starts from a tracked wrist: otherwise level 1 itself is the problem).
+        release_error: elbow error [m] that ends a recovery.
+        max_time: longest recovery [s].
+        refresh_time: the IK posture is recomputed this often [s] during a recovery.
+        gain: the joint-space task's gain [1/s].
+        ik_iterations: Gauss-Newton iterations of the IK.
+        ik_tolerance: wrist and elbow error [m] the IK posture must reach to be used.
+    """
+
+    trigger_error: float = 0.05
+    trigger_time: float = 0.02
+    wrist_tolerance: float = 0.02
+    release_error: float = 0.015
+    max_time: float = 1.0
+    refresh_time: float = 0.04
+    gain: float = 20.0
+    ik_iterations: int = 40
+    ik_tolerance: float = 0.01
+
+
+@dataclass
+class _ArmState:
+    off_since: float | None = None
+    active_since: float | None = None
+    refreshed: float = -np.inf
+    q_ik: np.ndarray | None = None
+    events: int = 0
+    history: list = field(default_factory=list)
+
+
+class LockupRecovery:
+    """Per-arm lock-up detector and the joint-space task that leads the arm out.
+
+    Args:
+        robot: the solver's reduced model.
+        config: settings.
+    """
+
+    def __init__(self, robot: RobotModel, config: RecoveryConfig | None = None):
+        self.robot = robot
+        self.config = config or RecoveryConfig()
+        self.data = robot.model.createData()
+        names = robot.joint_names
+        waist = [i for i, n in enumerate(names) if n in robot.profile.waist]
+        self.arm_joints = {s: np.array(robot.indices(robot.profile.arms[s].joints)) for s in SIDES}
+        self.ik_joints = {s: np.array(sorted(waist + list(self.arm_joints[s]))) for s in SIDES}
+        self.state = {s: _ArmState() for s in SIDES}
+        n = robot.nq
+        self.task = PostureTask(robot.q_rest, np.zeros(n), self.config.gain)
+        self._fid = {t: robot.frame_id(t) for t in (*WRISTS, *ELBOWS)}
+
+    @property
+    def active(self) -> list[str]:
+        """Sides recovering now."""
+        return [s for s in SIDES if self.state[s].active_since is not None]
+
+    @property
+    def events(self) -> int:
+        """Recoveries started so far."""
+        return sum(st.events for st in self.state.values())
+
+    def update(
+        self,
+        conf: Configuration,
+        wrist_tasks: list[Task],
+        elbow_tasks: list[Task],
+        t: float,
+    ) -> bool:
+        """Detect lock-ups at solver time t [s] and set the joint-space task; True while one is active.
+
+        Args:
+            conf: configuration at this tick (kinematics up to date).
+            wrist_tasks, elbow_tasks: the position tasks per side (``SIDES`` order), targets set.
+        """
+        cfg = self.config
+        for side, wt, et in zip(SIDES, wrist_tasks, elbow_tasks):
+            st = self.state[side]
+            e_el = float(np.linalg.norm(et.p_target - conf.get_frame_pose(et.frame)[0]))
+            e_wr = float(np.linalg.norm(wt.p_target - conf.get_frame_pose(wt.frame)[0]))
+            if st.active_since is not None:
+                if e_el < cfg.release_error or t - st.active_since > cfg.max_time:
+                    st.active_since = None
+                    st.off_since = None
+                    continue
+                if t - st.refreshed >= cfg.refresh_time:
+                    q = self._ik(conf.q if st.q_ik is None else st.q_ik, side, wt.p_target, et.p_target)
+                    if q is not None:
+                        st.q_ik = q
+                    st.refreshed = t
+                continue
+            if e_el > cfg.trigger_error and e_wr < cfg.wrist_tolerance:
+                if st.off_since is None:
+                    st.off_since = t
+                elif t - st.off_since >= cfg.trigger_time:
+                    seed = conf.q.copy()
+                    seed[self.ik_joints[side]] = self.robot.q_rest[self.ik_joints[side]]
+                    q = self._ik(seed, side, wt.p_target, et.p_target)
+                    if q is not None:
+                        st.q_ik, st.active_since, st.refreshed = q, t, t
+                        st.events += 1
+                        st.history.append(t)
+                    else:
+                        st.off_since = t  # no better posture exists: try again later
+            else:
+                st.off_since = None
+        active = self.active
+        if active:
+            cost = self.task.cost
+            cost.fill(0.0)
+            target = conf.q.copy()
+            for side in active:
+                idx = self.arm_joints[side]
+                cost[idx] = 1.0
+                target[idx] = self.state[side].q_ik[idx]
+            self.task.set_target(target)
+        return bool(active)
+
+    def _ik(self, seed: np.ndarray, side: str, p_wrist: np.ndarray, p_elbow: np.ndarray) -> np.ndarray | None:
+        """A posture (n,) [rad] within the limits placing this side's wrist and elbow at their targets, or None."""
+        model, data, robot = self.robot.model, self.data, self.robot
+        cols = self.ik_joints[side]
+        fw, fe = self._fid[f"{side}_wrist"], self._fid[f"{side}_elbow"]
+        q = seed.copy()
+        lam = 1e-4
+        for _ in range(self.config.ik_iterations):
+            pin.computeJointJacobians(model, data, q)
+            pin.updateFramePlacements(model, data)
+            e = np.r_[p_wrist - data.oMf[fw].translation, p_elbow - data.oMf[fe].translation]
+            if np.linalg.norm(e[:3]) < 1e-4 and np.linalg.norm(e[3:]) < 1e-4:
+                break
+            J = np.vstack(
+                (
+                    pin.getFrameJacobian(model, data, fw, pin.LOCAL_WORLD_ALIGNED)[:3, cols],
+                    pin.getFrameJacobian(model, data, fe, pin.LOCAL_WORLD_ALIGNED)[:3, cols],
+                )
+            )
+            H = J @ J.T
+            H.flat[::7] += lam
+            Jp = J.T @ np.linalg.solve(H, np.eye(6))
+            dq = Jp @ e
+            # null-space pull towards the rest pose keeps the posture away from the stops
+            dq += 0.1 * (np.eye(len(cols)) - Jp @ J) @ (robot.q_rest[cols] - q[cols])
+            q[cols] = np.clip(q[cols] + dq, robot.lower[cols], robot.upper[cols])
+        pin.framesForwardKinematics(model, data, q)
+        ok_w = np.linalg.norm(p_wrist - data.oMf[fw].translation) < self.config.ik_tolerance
+        ok_e = np.linalg.norm(p_elbow - data.oMf[fe].translation) < self.config.ik_tolerance
+        return q if ok_w and ok_e else None
