@@ -136,7 +136,7 @@ def _clearance(avoidance, q) -> float:
 def _drive(robot, avoidance, points, ticks_each, algo="hqp-nullspace"):
     """Closed loop (the solver integrates its own command) through the left-wrist targets; returns commands and the
     smallest clearance of the commanded joints."""
-    core = SolverCore(robot, SolverConfig(algo=algo, qp="daqp"))
+    core = SolverCore(robot, SolverConfig(algo=algo, qp="daqp", self_collision=True))
     core.reset(robot.q_rest)
     poses = robot.frame_poses(robot.q_rest)
     cmds, clear = [], np.inf
