@@ -98,13 +98,14 @@ def wait_for_endpoint(endpoint: str, timeout: float) -> bool:
     """Wait until a TCP endpoint (``tcp/HOST:PORT``) accepts connections; False after ``timeout`` [s]."""
     host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    while True:  # at least one try, so timeout 0 asks "is it listening now?"
         with socket.socket() as s:
             s.settimeout(0.2)
             if s.connect_ex((host, int(port))) == 0:
                 return True
+        if time.monotonic() >= deadline:
+            return False
         time.sleep(0.1)
-    return False
 
 
 def open_session(args: argparse.Namespace) -> zenoh.Session:

@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from services.evaluation.metrics import REACHABLE_TOL, reachable_mask, summarise, trace_metrics
 from services.evaluation.runner import EVAL_RETARGET, REFERENCE_ALGO, load_and_retarget, run_algorithm
+from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, ORIENTATION_REFERENCES
 from services.solver.algorithms import ALGORITHMS
 from services.solver.core import SolverConfig
@@ -94,8 +95,17 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     order = [REFERENCE_ALGO] + [a for a in algos if a != REFERENCE_ALGO]
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(order), desc="eval", unit="run", file=sys.stderr)
+    skipped = []
     for path in args.clips:
-        clip, targets = load_and_retarget(Path(path), robot, args.mapping, retarget)
+        try:
+            clip, targets = load_and_retarget(Path(path), robot, args.mapping, retarget)
+        except (ClipError, OSError, ValueError, RuntimeError) as exc:
+            # One bad or unknown-rig clip must not cost the user the whole run: say it in one
+            # line, record it, go on with the others.
+            log.error("skipping %s: %s", path, exc)
+            skipped.append({"clip": str(path), "error": str(exc)})
+            bar.update(len(order))
+            continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
         mask = None
         for algo in order:
@@ -118,8 +128,11 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             bar.update(1)
         clips_out.append(entry)
     bar.close()
+    if not clips_out:
+        raise SystemExit(f"mimic eval: no clip could be evaluated ({len(skipped)} skipped, see above)")
     result = {
         "clips": clips_out,
+        "skipped": skipped,
         "summary": summarise(clips_out),
         "paper": PAPER,
         "settings": {

@@ -19,9 +19,10 @@ from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
 from services.launcher.monitor import BusMonitor
+from services.launcher.session_lock import SessionBusyError, SessionLock
 from services.launcher.stack import ROUTER_SERVICE, select
-from shared.bus import DEFAULT_ROUTER
-from shared.paths import REPO_ROOT
+from shared.bus import DEFAULT_ROUTER, free_port
+from shared.paths import REPO_ROOT, unused_path
 
 log = logging.getLogger("mimic.up")
 #: Stopped after the others (the logger records the stack going down).
@@ -42,12 +43,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--summary", default=None, help="summary JSON path (default runs/<session>_summary.json)")
     p.add_argument("--ready-timeout", type=float, default=90.0, help="seconds to wait for every service to come up")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (without --demo)")
+    p.add_argument(
+        "--beside",
+        action="store_true",
+        help="run beside a stack already up: a free loopback port and the first free session <session>-<n>",
+    )
     p.add_argument("--compose", default=None, help="compose file to read (default: the repo's docker-compose.yml)")
 
 
 def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
     out = run_dir / "demo_motion"
-    stack.start("motion", argv=["mimic", "demo-motion", str(out)])
+    stack.start("motion", argv=["mimic", "demo-motion", str(out)], service=False)
     while stack.running("motion"):
         time.sleep(0.1)
     stack.sup.poll()
@@ -70,22 +76,43 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
-    stack = LocalStack(
-        session,
-        args.endpoint,
-        out=sys.stdout,
-        restart=args.restart,
-        compose=Path(args.compose) if args.compose else None,
-    )
-    specs = select(stack.spec, args.profile, args.only)
+    endpoint = args.endpoint
+    if args.beside:
+        endpoint, session = f"tcp/127.0.0.1:{free_port()}", _free_session(run_dir, session)
+    try:
+        stack = LocalStack(
+            session,
+            endpoint,
+            out=sys.stdout,
+            restart=args.restart,
+            compose=Path(args.compose) if args.compose else None,
+        )
+    except (SessionBusyError, ValueError, OSError) as exc:
+        log.error("%s", exc)
+        return 1
+    try:
+        specs = select(stack.spec, args.profile, args.only)
+    except ValueError as exc:
+        stack.close()
+        log.error("%s", exc)
+        return 1
     names = [s.name for s in specs if s.name != ROUTER_SERVICE]
+    # Never overwrite an earlier recording of the session: the next free runs/<session>[-n].rrd.
+    rrd = unused_path(run_dir / f"{session}.rrd")
+    extra = {"logger": ["--rrd", str(rrd)]}
     monitor = None
     code = 0
     try:
         stack.start_router()
         monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
-        stack.start_all(names, timeout=args.ready_timeout, stop=stop)
-        log.info("stack up on session %r: %s", session, ", ".join(s.name for s in specs))
+        stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
+        log.info(
+            "stack up on session %r, router %s: %s (recording %s)",
+            session,
+            endpoint,
+            ", ".join(s.name for s in specs),
+            rrd if "logger" in names else "none",
+        )
 
         if args.demo:
             clips = [Path(c) for c in args.clips] if args.clips else _demo_clips(run_dir, stack)
@@ -94,7 +121,9 @@ def main(args: argparse.Namespace) -> int:
                     break
                 name = f"play:{clip.stem}"[:24]
                 stack.start(
-                    name, argv=["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"]
+                    name,
+                    argv=["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"],
+                    service=False,
                 )
                 while stack.running(name) and not stop.is_set():
                     stack.sup.poll()
@@ -117,13 +146,20 @@ def main(args: argparse.Namespace) -> int:
         stack.close()
         summary["exit_codes"] = codes
         summary["session"] = session
-        rrd = run_dir / f"{session}.rrd"
         summary["recording"] = str(rrd) if rrd.exists() else None
         path = Path(args.summary) if args.summary else run_dir / f"{session}_summary.json"
         path.write_text(json.dumps(summary, indent=2))
         if args.demo or args.summary:
             _print_summary(summary, path)
     return code
+
+
+def _free_session(run_dir: Path, session: str) -> str:
+    """First ``<session>-<n>`` (n = 2, 3, ...) that no live stack holds."""
+    n = 2
+    while SessionLock(run_dir, f"{session}-{n}").owner() is not None:
+        n += 1
+    return f"{session}-{n}"
 
 
 def _joint_limits():

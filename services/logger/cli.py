@@ -13,6 +13,7 @@ import logging
 from pathlib import Path
 
 from shared.bus import add_bus_args
+from shared.paths import unused_path
 from shared.robot.profile import DEFAULT_PROFILE
 
 log = logging.getLogger("mimic.log")
@@ -27,7 +28,20 @@ def _vec3(text: str) -> tuple[float, float, float]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("recording")
-    g.add_argument("--rrd", type=Path, default=None, help="recording file (default runs/<session>.rrd)")
+    g.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="recording file (default runs/<session>.rrd); an existing file is kept and the recording goes to "
+        "the first free <name>-<n>.rrd, unless --overwrite",
+    )
+    g.add_argument("--overwrite", action="store_true", help="replace an existing --rrd file")
+    g.add_argument(
+        "--id",
+        default=None,
+        help="instance id on the bus (default 'main', 'viewer' with --serve: a viewer started beside a stack is "
+        "not mistaken for the stack's logger)",
+    )
     g.add_argument("--spawn", action="store_true", help="also spawn a native Rerun viewer (needs a display)")
     g.add_argument("--serve", action="store_true", help="also serve gRPC + the web viewer for a remote browser")
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve / --spawn")
@@ -85,6 +99,8 @@ def main(args: argparse.Namespace) -> int:
     from shared.robot.profile import ProfileError
 
     rrd = args.rrd or Path("runs") / f"{args.session}.rrd"
+    if not args.overwrite:
+        rrd = unused_path(rrd)
     try:
         rrd.parent.mkdir(parents=True, exist_ok=True)
         visual = None if args.no_meshes else RobotVisual(args.robot)
@@ -101,7 +117,8 @@ def main(args: argparse.Namespace) -> int:
         follow=args.follow,
     )
     logger.setup()
-    with ServiceRunner("logger", args) as svc:
+    instance = args.id or ("viewer" if args.serve else "main")
+    with ServiceRunner("logger", args, instance=instance) as svc:
         node = LoggerNode(logger, svc, queue_size=args.queue)
         svc.log.info("recording %s to %s", svc.keys.everything, rrd)
         while not svc.stop_event.wait(0.5):

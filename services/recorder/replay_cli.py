@@ -19,6 +19,7 @@ from services.recorder.mcap_io import read_recording
 from services.recorder.replay import ReplayPlan
 from shared.bus import ServiceRunner, add_bus_args
 from shared.keys import DEFAULT_SESSION, Keys
+from shared.messages import restamp
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.replay")
@@ -35,6 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     # --session (from the bus flags) means "republish into this session"; unset keeps the recorded one.
     p.set_defaults(session=None)
+    p.add_argument(
+        "--keep-t0",
+        action="store_true",
+        help="publish headers with their recorded t0 (default: t0 = now, the time the message enters the bus "
+        "again, so latency is measured and a running stack takes the replay as a restarted source)",
+    )
     p.add_argument("--start-delay", type=float, default=0.5, help="wait for subscribers to be matched first [s]")
 
 
@@ -68,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
                 if wait > 0:
                     time.sleep(wait)
                 late.append(max(0.0, time.monotonic() - t_start - due.offset))
-            pub.put(due.data)
+            pub.put(due.data if args.keep_t0 else restamp(due.data, time.time_ns()))
             svc.status.published("replay")
             n += 1
         elapsed = time.monotonic() - t_start

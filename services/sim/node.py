@@ -27,6 +27,8 @@ from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
+#: Shortest interval between two "velocity past its limit" warnings [s].
+VELOCITY_LOG_PERIOD = 5.0
 
 
 def parse_follow(payload: bytes) -> str:
@@ -78,6 +80,8 @@ class SimNode:
         self.follow = core.solver_id
         self.ignored = 0
         self.overruns = 0
+        self._velocity_excess_said = 0  # velocity_excess_steps at the last warning
+        self._velocity_said_at = -float("inf")  # monotonic time of that warning [s]
         self._rejects_seen: dict[str, int] = {}
         self._slot = LatestSlot(svc.status, "commands")
         self._queue: queue.Queue[JointCommand] = queue.Queue(maxsize=10000)
@@ -148,8 +152,23 @@ class SimNode:
                 "overruns": float(self.overruns),
                 "sim_time": self.core.time,
                 "max_contacts": float(self.core.max_contacts),
+                "velocity_excess_steps": float(c.velocity_excess_steps),
+                "worst_velocity_ratio": c.worst_velocity_ratio,
             }
         )
+        if c.velocity_excess_steps > self._velocity_excess_said:
+            # The robot, not a command, went past a limit: say it (status + log), at most every 5 s.
+            now = time.monotonic()
+            if now - self._velocity_said_at >= VELOCITY_LOG_PERIOD:
+                j = self.core.joint_names.index(c.worst_velocity_joint)
+                msg = (
+                    f"simulated joint velocity past its limit in {c.velocity_excess_steps} physics step(s) so far; "
+                    f"worst {c.worst_velocity_joint} {c.worst_velocity_ratio * self.core.vmax[j]:.2f} rad/s vs "
+                    f"{self.core.vmax[j]:.2f} rad/s (the commands stay within it: servo overshoot)"
+                )
+                self.svc.log.warning("%s", msg)
+                st.error(msg)
+                self._velocity_excess_said, self._velocity_said_at = c.velocity_excess_steps, now
 
     def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
         """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time)."""
