@@ -445,6 +445,22 @@ def query(session: zenoh.Session, key: str, payload: bytes | None = None, timeou
     raise RuntimeError(f"query {key}: no reply within {timeout} s")
 
 
+def query_when_ready(session: zenoh.Session, key: str, timeout: float = 3.0, interval: float = 0.3) -> bytes:
+    """GET ``key`` again every ``interval`` [s] until it answers or ``timeout`` [s] passes.
+
+    A session opened a moment ago may not know the route to the queryable yet, so a one-shot
+    command line tool would report "no reply" from a healthy stack. Raises RuntimeError like
+    :func:`query` (its last error).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return query(session, key, None, timeout=min(interval, max(0.05, deadline - time.monotonic())))
+        except RuntimeError as exc:
+            if "no reply" not in str(exc) or time.monotonic() >= deadline:
+                raise
+
+
 def setup_logging(level: str | int = "INFO", prefix: str = "") -> None:
     """Process-wide logging format; ``MIMIC_LOG`` overrides the level."""
     level = os.environ.get("MIMIC_LOG", level)

@@ -21,7 +21,7 @@ from pathlib import Path
 import msgpack
 
 from services.retarget.calibration import Calibration, CalibrationError
-from shared.bus import add_bus_args, open_session, query
+from shared.bus import add_bus_args, open_session, query, query_when_ready
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.calibrate")
@@ -49,7 +49,9 @@ def main(args: argparse.Namespace) -> int:
     key = Keys(args.session).calibration
     with open_session(args) as z:
         try:
-            reply = msgpack.unpackb(query(z, key, payload, timeout=args.timeout))
+            reply = msgpack.unpackb(query_when_ready(z, key, args.timeout))  # GET: the route is known
+            if payload is not None:
+                reply = msgpack.unpackb(query(z, key, payload, timeout=args.timeout))
         except RuntimeError as exc:
             log.error(
                 "no retarget answered on session %r (%s): is the stack up on this endpoint/session?", args.session, exc

@@ -15,7 +15,7 @@ import time
 
 import msgpack
 
-from shared.bus import add_bus_args, open_session, query
+from shared.bus import add_bus_args, open_session, query, query_when_ready
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.follow")
@@ -46,7 +46,7 @@ def main(args: argparse.Namespace) -> int:
     keys = Keys(args.session)
     with open_session(args) as z:
         try:
-            before = msgpack.unpackb(query(z, keys.sim_follow, timeout=args.timeout))["follow"]
+            before = msgpack.unpackb(query_when_ready(z, keys.sim_follow, args.timeout))["follow"]
             solvers = alive_solvers(z, keys)
             if args.id is not None and args.id != before:
                 if args.id not in solvers and not args.force:
