@@ -47,6 +47,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve / --spawn")
     g.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve")
     g.add_argument(
+        "--bind-host",
+        default="127.0.0.1",
+        help="interface the --serve gRPC server (the recording's data) listens on; it is unauthenticated, so "
+        "loopback unless asked (0.0.0.0: every interface, for a browser on another machine)",
+    )
+    g.add_argument(
         "--advertise-host",
         default="localhost",
         help="host name the browser uses to reach the gRPC server (--serve); the machine's name or IP for remote use",
@@ -78,7 +84,7 @@ def open_recording(args: argparse.Namespace, rrd: Path):
         rr.spawn(port=args.grpc_port, connect=False)
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{args.grpc_port}/proxy"))
     elif args.serve:
-        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
+        sinks.append(rr.GrpcServerSink(bind_ip=args.bind_host, port=args.grpc_port))
     if args.connect_viewer:
         sinks.append(rr.GrpcSink(args.connect_viewer))
     bp = blueprint(args.operator_offset)
