@@ -27,6 +27,8 @@ from shared.paths import REPO_ROOT, unused_path
 log = logging.getLogger("mimic.up")
 #: Stopped after the others (the logger records the stack going down).
 STOP_LAST = ("logger",)
+#: The logger's grace at stop [s]: it compacts the recording before it exits.
+LOGGER_STOP_S = 90.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -122,7 +124,18 @@ def main(args: argparse.Namespace) -> int:
                 name = f"play:{clip.stem}"[:24]
                 stack.start(
                     name,
-                    argv=["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"],
+                    # One status per clip (publish/<clip>), not the last clip's counts as the run's.
+                    argv=[
+                        "mimic",
+                        "publish",
+                        str(clip),
+                        "--rate",
+                        str(args.rate),
+                        "--wait-subscriber",
+                        "10",
+                        "--instance",
+                        _instance(clip.stem),
+                    ],
                     service=False,
                 )
                 while stack.running(name) and not stop.is_set():
@@ -139,7 +152,7 @@ def main(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         code = 1
     finally:
-        codes = stack.stop(last=STOP_LAST)
+        codes = stack.stop(last=STOP_LAST, timeouts={"logger": LOGGER_STOP_S})
         summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
             monitor.close()
@@ -174,6 +187,24 @@ def _joint_limits():
         return None, None
 
 
+#: What the summary's figures mean (printed under it: a newcomer must not read "dropped" as lost).
+LEGEND = (
+    "",
+    "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
+    "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
+    "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
+    "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
+    "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
+    "error: simulated robot vs its targets, last state of each frame. max includes the start of each clip",
+    "  (the robot moving from its pose onto the operator's); p95 is the figure for the motion itself.",
+)
+
+
+def _instance(stem: str) -> str:
+    """A bus instance id (one key chunk) from a clip name."""
+    return "".join(c if c.isalnum() or c in "-_" else "-" for c in stem)[:32] or "clip"
+
+
 def _print_summary(s: dict, path: Path) -> None:
     width = shutil.get_terminal_size((100, 20)).columns
     lines = ["", "=" * min(width, 78), "mimic run summary", "=" * min(width, 78)]
@@ -193,13 +224,16 @@ def _print_summary(s: dict, path: Path) -> None:
         f" ({lat.get('samples')} frames)"
     )
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
-    lines.append(f"wrist error: mean {f(we.get('mean'), ' cm')}, max {f(we.get('max'), ' cm')}")
-    lines.append(f"elbow error: mean {f(ee.get('mean'), ' cm')}, max {f(ee.get('max'), ' cm')}")
+    for name, e in (("wrist", we), ("elbow", ee)):
+        lines.append(
+            f"{name} error: mean {f(e.get('mean'), ' cm')}, p95 {f(e.get('p95'), ' cm')}, max {f(e.get('max'), ' cm')}"
+        )
     lines.append(
         f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"
         f" simulated {s.get('max_joint_limit_excess_rad', 0.0):.2e} rad"
     )
     lines.append(f"recording: {s.get('recording')}")
+    lines.extend(LEGEND)
     lines.append(f"summary: {path}")
     # The summary is the command's product for the user, so it goes to stdout, not the log.
     sys.stdout.write("\n".join(lines) + "\n")

@@ -254,8 +254,12 @@ class LocalStack:
         text = self._log.getvalue() if self._log is not None else ""
         return text if tail is None else text[-tail:]
 
-    def stop(self, last: Iterable[str] = ("logger",), timeout: float = 8.0) -> dict[str, int | None]:
+    def stop(
+        self, last: Iterable[str] = ("logger",), timeout: float = 8.0, timeouts: dict[str, float] | None = None
+    ) -> dict[str, int | None]:
         """Stop every child (reverse start order, ``last`` and the router at the end); exit codes by name.
+
+        ``timeouts``: per-child grace before SIGKILL [s] (e.g. the logger compacting its recording).
 
         The stack's session (:attr:`bus`) stays open, so observers keep what the services said
         while stopping (their last status); :meth:`close` closes it.
@@ -263,7 +267,7 @@ class LocalStack:
         tail = [*last, ROUTER_SERVICE]
         order = [n for n in reversed(self.sup.children) if n not in tail]
         order += [n for n in tail if n in self.sup.children]
-        codes = {n: self.sup.stop(n, timeout) for n in order}
+        codes = {n: self.sup.stop(n, (timeouts or {}).get(n, timeout)) for n in order}
         if self.session_lock.held:
             forget_state(self.spec.values(), self.cwd)  # the stack's state lives as long as the stack
             self.session_lock.release()

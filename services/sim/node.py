@@ -166,8 +166,7 @@ class SimNode:
                     f"worst {c.worst_velocity_joint} {c.worst_velocity_ratio * self.core.vmax[j]:.2f} rad/s vs "
                     f"{self.core.vmax[j]:.2f} rad/s (the commands stay within it: servo overshoot)"
                 )
-                self.svc.log.warning("%s", msg)
-                st.error(msg)
+                st.error(msg)  # logs it too
                 self._velocity_excess_said, self._velocity_said_at = c.velocity_excess_steps, now
 
     def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
