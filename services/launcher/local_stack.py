@@ -110,7 +110,7 @@ class LocalStack:
         self.session_lock = SessionLock(self.cwd / "runs", session)
         self.session_lock.acquire()
         # A new stack is a new operator session: no state from an earlier run.
-        for path in forget_state(self.spec.values(), self.cwd):
+        for path in forget_state(self.spec.values(), self.cwd, session):
             log.info("new stack: removed the previous service state %s", path)
 
     # ------------------------------------------------------------------ commands
@@ -269,7 +269,7 @@ class LocalStack:
         order += [n for n in tail if n in self.sup.children]
         codes = {n: self.sup.stop(n, (timeouts or {}).get(n, timeout)) for n in order}
         if self.session_lock.held:
-            forget_state(self.spec.values(), self.cwd)  # the stack's state lives as long as the stack
+            forget_state(self.spec.values(), self.cwd, self.session)  # the stack's state lives as long as the stack
             self.session_lock.release()
         return codes
 

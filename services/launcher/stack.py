@@ -122,7 +122,7 @@ def local_environment(spec: ServiceSpec, endpoint: str, session: str | None = No
 STATE_FLAGS = ("--calibration-state",)
 
 
-def forget_state(specs: Iterable[ServiceSpec], root: Path) -> list[Path]:
+def forget_state(specs: Iterable[ServiceSpec], root: Path, session: str | None = None) -> list[Path]:
     """Delete the state files (``STATE_FLAGS``) of the given services; returns those removed.
 
     A new stack is a new operator session: the retarget calibration must come from that
@@ -130,6 +130,13 @@ def forget_state(specs: Iterable[ServiceSpec], root: Path) -> list[Path]:
     crashed retarget comes back with the calibration it had. Relative paths are from ``root``.
     """
     removed = []
+    if session is not None:  # files services derive from the session themselves (the sim's last state)
+        from services.sim.resume import session_state_file
+
+        path = root / session_state_file(session)
+        if path.exists():
+            path.unlink()
+            removed.append(path)
     for spec in specs:
         for flag, value in zip(spec.command, spec.command[1:]):
             if flag in STATE_FLAGS and (root / value).exists():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from pathlib import Path
 
 # MuJoCo reads MUJOCO_GL when first imported; EGL renders without a display.
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -62,6 +63,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--lockstep-dt", type=float, default=0.01, help="simulated time per command in lock-step [s]")
     g.add_argument("--state-rate", type=float, default=200.0, help="RobotState rate in real time [Hz]")
+    g.add_argument(
+        "--state-file",
+        default="auto",
+        help="joint positions kept for a restart: loaded at start when present, rewritten while running "
+        "('auto': runs/<session>_sim_state.json; 'none': off)",
+    )
     g.add_argument("--render", default=None, metavar="DIR", help="render offscreen to DIR (sim.mp4 or PNG frames)")
     g.add_argument("--render-fps", type=float, default=10.0, help="rendered frames per simulated second")
     g.add_argument("--render-format", choices=("auto", "mp4", "png"), default="auto", help="mp4 needs ffmpeg")
@@ -70,6 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from services.sim.node import run
+    from services.sim.resume import load_state, session_state_file
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
@@ -80,6 +88,13 @@ def main(args: argparse.Namespace) -> int:
             raise ValueError("--state-rate and --lockstep-dt must be positive")
         config = sim_config(args)
         core = SimCore(args.robot, config)
+        if args.state_file == "auto":
+            args.state_file = session_state_file(args.session)
+        if args.state_file != "none":
+            q = load_state(Path(args.state_file), list(core.joint_names))
+            if q is not None:
+                core.resume(q)
+                log.info("resumed from the last state in %s (not the rest pose)", args.state_file)
     except (ProfileError, ValueError, KeyError) as exc:
         log.error("%s", exc)
         return 2

@@ -20,6 +20,7 @@ from pathlib import Path
 import msgpack
 
 from services.sim.render import BackgroundFrameWriter, FrameWriter, open_renderer
+from services.sim.resume import save_state
 from services.sim.sim_core import SimCore
 from shared.bus import LatestSlot, ServiceRunner
 from shared.keys import Keys
@@ -27,6 +28,8 @@ from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
+#: How often the joint positions are written for a restart [s].
+STATE_SAVE_PERIOD = 0.25
 #: Shortest interval between two "velocity past its limit" warnings [s].
 VELOCITY_LOG_PERIOD = 5.0
 
@@ -80,6 +83,8 @@ class SimNode:
         self.follow = core.solver_id
         self.ignored = 0
         self.overruns = 0
+        self.state_file: Path | None = None  # where keep_state writes (None: off)
+        self._next_save = 0.0
         self._velocity_excess_said = 0  # velocity_excess_steps at the last warning
         self._velocity_said_at = -float("inf")  # monotonic time of that warning [s]
         self._rejects_seen: dict[str, int] = {}
@@ -137,6 +142,17 @@ class SimNode:
     def _render(self) -> None:
         if self.renderer is not None:
             self.renderer.maybe_render(self.core.robot.data)
+
+    def keep_state(self, now: float, force: bool = False) -> None:
+        """Write the joint positions to the state file every STATE_SAVE_PERIOD (see :mod:`.resume`)."""
+        if self.state_file is None or (not force and now < self._next_save):
+            return
+        self._next_save = now + STATE_SAVE_PERIOD
+        try:
+            save_state(self.state_file, list(self.core.joint_names), self.core.q)
+        except OSError as exc:
+            self.svc.status.error(f"cannot write the sim state file {self.state_file}: {exc}")
+            self.state_file = None
 
     def update_status(self) -> None:
         """Refresh the status state and service-specific figures."""
@@ -198,6 +214,7 @@ class SimNode:
             if now >= next_status:
                 self.update_status()
                 next_status = now + 0.1
+                self.keep_state(now)
             if duration is not None and core.time - sim0 >= duration:
                 break
             sleep = dt - ((now - wall0) - (core.time - sim0))
@@ -248,11 +265,14 @@ def run(args, core: SimCore) -> int:
                 svc.keys.sim_state,
                 core.info(),
             )
+            state_file = getattr(args, "state_file", "none")
+            node.state_file = None if state_file in (None, "none") else Path(state_file)
             if node.lockstep:
                 node.run_lockstep(svc.stop_event)
             else:
                 node.run_realtime(svc.stop_event)
             node.update_status()
+            node.keep_state(time.monotonic(), force=True)
     finally:
         if renderer is not None:
             renderer.close()

@@ -167,6 +167,20 @@ class SimCore:
         self.counters = SimCounters()
         self._ncon_max = 0
 
+    def resume(self, q: np.ndarray) -> None:
+        """Start from joint positions ``q`` (n,) [rad] (clipped into the limits), holding them, at rest.
+
+        For a restarted sim: the robot continues from its last state instead of jumping to the
+        profile rest pose.
+        """
+        q = np.clip(np.asarray(q, dtype=float), self.lower, self.upper)
+        self.robot.set_q(q)
+        self.robot.data.qvel[self.robot.dof_idx] = 0.0
+        mujoco.mj_forward(self.robot.model, self.robot.data)
+        self.q_servo, self._ref_q, self._hold_q = q.copy(), q.copy(), q.copy()
+        self._ref_qd[:] = 0.0
+        self.holding = True
+
     # ------------------------------------------------------------------ properties
 
     @property
