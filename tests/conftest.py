@@ -56,3 +56,11 @@ def local_stack(zenoh_endpoint):
     session = f"t{zenoh_endpoint.rsplit(':', 1)[1]}"
     with LocalStack(session, zenoh_endpoint, status_period=0.2) as stack:
         yield stack
+
+
+@pytest.fixture(scope="session")
+def mocap_sources(mocap_dir):
+    """SOURCES.md of the real mocap data, parsed (the facts tests check clips against)."""
+    from tests.support.mocap_sources import MocapSources
+
+    return MocapSources.read(mocap_dir)

@@ -76,21 +76,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
-    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGORITHMS]
-    if unknown:
-        raise SystemExit(f"unknown algorithms {unknown}; known: {sorted(ALGORITHMS)}")
+    algos, solver, wqp_weights, retarget = _settings(args)
     robot = build_robot_model(with_waist=not args.no_waist)
-    level = getattr(args, "wrist_orientation_level", None)
-    elbows = getattr(args, "elbow_placement", ELBOW_PLACEMENTS[0])
-    oref = getattr(args, "orientation_reference", ORIENTATION_REFERENCES[0])
-    if getattr(args, "paper", False):
-        level, elbows, oref = 1, "mapped", "rest"
-    solver = {} if level is None else {"wrist_orientation_level": level}
-    wq = getattr(args, "wqp_weights", None)
-    wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
-    retarget = {**EVAL_RETARGET, "elbow_placement": elbows, "orientation_reference": oref}
-    retarget["velocity_tau"] = getattr(args, "velocity_tau", EVAL_RETARGET["velocity_tau"])
     # The reachable-tick mask comes from the strict hierarchy, so run it first.
     order = [REFERENCE_ALGO] + [a for a in algos if a != REFERENCE_ALGO]
     clips_out, traces = [], {}
@@ -130,32 +117,59 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     bar.close()
     if not clips_out:
         raise SystemExit(f"mimic eval: no clip could be evaluated ({len(skipped)} skipped, see above)")
-    result = {
-        "clips": clips_out,
-        "skipped": skipped,
-        "summary": summarise(clips_out),
-        "paper": PAPER,
-        "settings": {
-            "algos": algos,
-            "qp": args.qp,
-            "rate_hz": args.rate,
-            "mapping": args.mapping,
-            "retarget": retarget,
-            "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
-            "solver": {
-                "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
-                "gain": SolverConfig().gain,
-                "orientation_gain": SolverConfig().orientation_gain,
-                "damping": list(SolverConfig().damping),
-            },
-            "dof": robot.nq,
-            "sim": not args.no_sim,
-            "reachable_tol": REACHABLE_TOL,
-            "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
-            "tick's command is for (t + dt)",
-        },
-    }
+    result = {"clips": clips_out, "skipped": skipped, "summary": summarise(clips_out), "paper": PAPER}
+    result["settings"] = _settings_json(args, algos, solver, wqp_weights, retarget, robot.nq)
     return result, traces
+
+
+def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
+    """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
+    ``--paper`` sets orientation level 1, mapped elbows and eq. 4 against the rest pose."""
+    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
+    unknown = [a for a in algos if a not in ALGORITHMS]
+    if unknown:
+        raise SystemExit(f"unknown algorithms {unknown}; known: {sorted(ALGORITHMS)}")
+    level = getattr(args, "wrist_orientation_level", None)
+    elbows = getattr(args, "elbow_placement", ELBOW_PLACEMENTS[0])
+    oref = getattr(args, "orientation_reference", ORIENTATION_REFERENCES[0])
+    if getattr(args, "paper", False):
+        level, elbows, oref = 1, "mapped", "rest"
+    solver = {} if level is None else {"wrist_orientation_level": level}
+    wq = getattr(args, "wqp_weights", None)
+    wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
+    retarget = {**EVAL_RETARGET, "elbow_placement": elbows, "orientation_reference": oref}
+    retarget["velocity_tau"] = getattr(args, "velocity_tau", EVAL_RETARGET["velocity_tau"])
+    return algos, solver, wqp_weights, retarget
+
+
+def _settings_json(
+    args: argparse.Namespace,
+    algos: list[str],
+    solver: dict,
+    wqp_weights: tuple[float, ...] | None,
+    retarget: dict,
+    dof: int,
+) -> dict:
+    """What ran, for the result JSON (anyone can rerun it from these)."""
+    return {
+        "algos": algos,
+        "qp": args.qp,
+        "rate_hz": args.rate,
+        "mapping": args.mapping,
+        "retarget": retarget,
+        "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
+        "solver": {
+            "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
+            "gain": SolverConfig().gain,
+            "orientation_gain": SolverConfig().orientation_gain,
+            "damping": list(SolverConfig().damping),
+        },
+        "dof": dof,
+        "sim": not args.no_sim,
+        "reachable_tol": REACHABLE_TOL,
+        "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
+        "tick's command is for (t + dt)",
+    }
 
 
 def main(args: argparse.Namespace) -> int:

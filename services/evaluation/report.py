@@ -24,6 +24,16 @@ def _rpy(R: np.ndarray) -> np.ndarray:
     return np.degrees(np.unwrap(np.stack([roll, pitch, yaw], axis=1), axis=0))
 
 
+def _finish(fig, axs, path: Path, title: str) -> None:
+    """Legend on the top panel, time axis on the bottom one, title; save as PNG and free the figure."""
+    axs[0].legend(fontsize=7, ncol=2)
+    axs[-1].set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def _xyz_plot(path: Path, traces: dict[str, Trace], target: str, title: str) -> None:
     fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     ref = next(iter(traces.values()))
@@ -32,12 +42,7 @@ def _xyz_plot(path: Path, traces: dict[str, Trace], target: str, title: str) -> 
         for algo, tr in traces.items():
             ax.plot(tr.t, tr.kin_p[target][:, i] * 100, lw=1, label=f"output {algo}")
         ax.set_ylabel(f"{AXES[i]} [cm]")
-    axs[0].legend(fontsize=7, ncol=2)
-    axs[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _finish(fig, axs, path, title)
 
 
 def _rpy_plot(path: Path, traces: dict[str, Trace], target: str, title: str, use_ref: bool) -> None:
@@ -56,12 +61,7 @@ def _rpy_plot(path: Path, traces: dict[str, Trace], target: str, title: str, use
             axs[i].plot(tr.t, r[:, i], lw=1, label=f"output {algo}")
     for i, name in enumerate(("roll", "pitch", "yaw")):
         axs[i].set_ylabel(f"{name} [deg]")
-    axs[0].legend(fontsize=7, ncol=2)
-    axs[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _finish(fig, axs, path, title)
 
 
 def _elbow_3d(path: Path, traces: dict[str, Trace], target: str, title: str) -> None:

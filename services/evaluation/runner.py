@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -104,89 +105,130 @@ def run_algorithm(
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
     """
+    core = _solver_core(robot, algo, qp, rate, solver, wqp_weights)
+    simcore = _sim_core(robot) if sim else None
+    dt = 1.0 / rate
+    rec = _Recorder(robot, core, simcore)
+    for t, msg in _arrivals(targets, settle, dt):
+        cmd = core.step(msg, None, t)
+        if simcore is not None:
+            simcore.advance(cmd, dt)  # the sim maps commands by joint name
+        if t >= settle:
+            rec.tick(t, settle, dt, cmd)
+    return rec.trace(algo)
+
+
+def _solver_core(
+    robot: RobotModel,
+    algo: str,
+    qp: str,
+    rate: float,
+    solver: dict | None,
+    wqp_weights: tuple[float, ...] | None,
+) -> SolverCore:
+    """The solver as the node builds it, at the rest pose (``wqp`` with ``wqp_weights`` if given)."""
     core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate, solver_id="eval", **(solver or {})))
     if algo == "wqp" and wqp_weights is not None:
         core.algorithm = WeightedQp(make_backend(qp), level_weights=wqp_weights, eps=core.config.damping)
     core.reset(robot.q_rest)
-    simcore = None
-    if sim:
-        from services.sim.sim_core import SimConfig, SimCore
+    return core
 
-        simcore = SimCore(robot.profile, SimConfig(solver_id="eval"))
-    dt = 1.0 / rate
+
+def _sim_core(robot: RobotModel):
+    """The MuJoCo sim of the robot, following the commands in lock-step."""
+    from services.sim.sim_core import SimConfig, SimCore
+
+    return SimCore(robot.profile, SimConfig(solver_id="eval"))
+
+
+def _arrivals(targets: list[TaskTargets], settle: float, dt: float) -> Iterator[tuple[float, TaskTargets | None]]:
+    """(tick time [s], frame arriving at that tick or None) for every control tick of the clip.
+
+    The first frame is given at rest (zero velocities) on tick 0 and held through ``settle``; then
+    each frame arrives on the first tick at or after ``stamp + settle``; the ticks run one 30 fps
+    frame period past the last arrival.
+    """
     stamps = np.array([tt.hdr.stamp for tt in targets]) + settle
-    t_end = stamps[-1] + 1.0 / 30.0
-    n_ticks = int(np.ceil(t_end / dt))
-    rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
-    ref_p = {n: [] for n in TARGET_NAMES}
-    ref_R = {n: [] for n in WRISTS}
-    ref_ok = {n: [] for n in TARGET_NAMES}
-    kin_p = {n: [] for n in TARGET_NAMES}
-    kin_R = {n: [] for n in WRISTS}
-    sim_p = {n: [] for n in TARGET_NAMES}
-    sim_R = {n: [] for n in WRISTS}
+    n_ticks = int(np.ceil((stamps[-1] + 1.0 / 30.0) / dt))
     k_next = 0
-    first = _at_rest(targets[0])  # held through the settle: no extrapolation away from it
     for tick in range(n_ticks):
         t = tick * dt
         msg = None
         if t < settle:
-            msg = first if tick == 0 else None
+            msg = _at_rest(targets[0]) if tick == 0 else None  # held: no extrapolation away from it
         else:
             while k_next < len(targets) and stamps[k_next] <= t + 1e-12:
                 msg = targets[k_next]
                 k_next += 1
-        cmd = core.step(msg, None, t)
-        if simcore is not None:
-            simcore.advance(cmd, dt)  # the sim maps commands by joint name
-        if t < settle:
-            continue
-        poses = robot.frame_poses(cmd.q)
+        yield t, msg
+
+
+class _Recorder:
+    """Collects one scored tick at a time: references, kinematic and sim poses, commands."""
+
+    def __init__(self, robot: RobotModel, core: SolverCore, simcore=None) -> None:
+        self.robot, self.core, self.simcore = robot, core, simcore
+        self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
+        self.ref_p = {n: [] for n in TARGET_NAMES}
+        self.ref_R = {n: [] for n in WRISTS}
+        self.ref_ok = {n: [] for n in TARGET_NAMES}
+        self.kin_p = {n: [] for n in TARGET_NAMES}
+        self.kin_R = {n: [] for n in WRISTS}
+        self.sim_p = {n: [] for n in TARGET_NAMES}
+        self.sim_R = {n: [] for n in WRISTS}
+
+    def tick(self, t: float, settle: float, dt: float, cmd) -> None:
+        """Record the command of tick ``t`` [s] (clip time ``t - settle``)."""
+        poses = self.robot.frame_poses(cmd.q)
         for n in TARGET_NAMES:
             # The command of tick t is the pose for t + dt (the sim reaches it over the next tick,
             # the solver's feed-forward aims there): score it against the reference at t + dt as
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
-            s = core.tracker.sample(n, t + dt)
-            ok = s is not None and not s.held
-            ref_ok[n].append(ok)
-            ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
-            kin_p[n].append(poses[n][0])
-            if n in ref_R:
-                ref_R[n].append(s.R if s is not None else np.eye(3))
-                kin_R[n].append(poses[n][1])
-        if simcore is not None:
-            for n, pose in simcore.frame_poses().items():
-                sim_p[n].append(pose.p)
-                if n in sim_R:
-                    sim_R[n].append(quat_to_matrix(pose.q))
-        rec["t"].append(t - settle)
-        rec["seq"].append(cmd.hdr.seq)
-        rec["q"].append(cmd.q)
-        rec["qd"].append(cmd.qd)
-        rec["ms"].append(cmd.solve_ms)
-        rec["status"].append(cmd.status)
-        rec["res1"].append(cmd.residuals[0] if cmd.residuals else np.nan)
+            s = self.core.tracker.sample(n, t + dt)
+            self.ref_ok[n].append(s is not None and not s.held)
+            self.ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
+            self.kin_p[n].append(poses[n][0])
+            if n in self.ref_R:
+                self.ref_R[n].append(s.R if s is not None else np.eye(3))
+                self.kin_R[n].append(poses[n][1])
+        if self.simcore is not None:
+            for n, pose in self.simcore.frame_poses().items():
+                self.sim_p[n].append(pose.p)
+                if n in self.sim_R:
+                    self.sim_R[n].append(quat_to_matrix(pose.q))
+        for key, value in (
+            ("t", t - settle),
+            ("seq", cmd.hdr.seq),
+            ("q", cmd.q),
+            ("qd", cmd.qd),
+            ("ms", cmd.solve_ms),
+            ("status", cmd.status),
+            ("res1", cmd.residuals[0] if cmd.residuals else np.nan),
+        ):
+            self.rec[key].append(value)
 
-    def arr(d):
-        return {k: np.asarray(v) for k, v in d.items() if len(v)}
+    def trace(self, algo: str) -> Trace:
+        def arr(d):
+            return {k: np.asarray(v) for k, v in d.items() if len(v)}
 
-    return Trace(
-        algo=algo,
-        t=np.asarray(rec["t"]),
-        seq=np.asarray(rec["seq"]),
-        ref_p=arr(ref_p),
-        ref_R=arr(ref_R),
-        ref_ok=arr(ref_ok),
-        kin_p=arr(kin_p),
-        kin_R=arr(kin_R),
-        q=np.asarray(rec["q"]),
-        qd=np.asarray(rec["qd"]),
-        solve_ms=np.asarray(rec["ms"]),
-        status=np.asarray(rec["status"]),
-        res1=np.asarray(rec["res1"]),
-        sim_p=arr(sim_p),
-        sim_R=arr(sim_R),
-    )
+        rec = {k: np.asarray(v) for k, v in self.rec.items()}
+        return Trace(
+            algo=algo,
+            t=rec["t"],
+            seq=rec["seq"],
+            ref_p=arr(self.ref_p),
+            ref_R=arr(self.ref_R),
+            ref_ok=arr(self.ref_ok),
+            kin_p=arr(self.kin_p),
+            kin_R=arr(self.kin_R),
+            q=rec["q"],
+            qd=rec["qd"],
+            solve_ms=rec["ms"],
+            status=rec["status"],
+            res1=rec["res1"],
+            sim_p=arr(self.sim_p),
+            sim_R=arr(self.sim_R),
+        )
 
 
 def _at_rest(tt: TaskTargets) -> TaskTargets:

@@ -22,16 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from services.ingest.clip import Clip, clip_from_world
+from services.ingest.body_frame import arm_length, left_axis, trunk_top, unit_scale, up_axis
+from services.ingest.clip import Clip, clip_from_file
 from services.ingest.errors import BvhError, ClipError
-from services.ingest.rotations import Y_UP_TO_Z_UP, euler_to_matrix, frame_from_axes
+from services.ingest.rotations import euler_to_matrix, frame_from_axes
 from services.ingest.skeleton_maps import SkeletonMap, detect_map, load_skeleton_map
 
 log = logging.getLogger(__name__)
 
 _AXES = "XYZ"
-#: Metres per file unit.
-UNIT_SCALES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 
 
 @dataclass
@@ -141,130 +140,126 @@ def _tokens(lines: list[str], start: int, stop: int):
             yield tok, ln + 1
 
 
-def parse_bvh(path: str | Path) -> BvhData:
-    """Parse a BVH file.
+class _Hierarchy:
+    """Reader of the HIERARCHY section: tokens with their line numbers, joints in file order."""
 
-    Raises:
-        BvhError: with the file name and line number of the first problem.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(errors="replace")
-    except OSError as exc:
-        raise BvhError(f"{path}: cannot read ({exc.strerror})") from None
-    lines = text.splitlines()
-    motion_line = next((i for i, ln in enumerate(lines) if ln.strip().upper().startswith("MOTION")), None)
-    if motion_line is None:
-        raise BvhError(f"{path}: no MOTION section (truncated or not a BVH file)")
-    toks = list(_tokens(lines, 0, motion_line))
-    pos = 0
+    def __init__(self, path: Path, lines: list[str], motion_line: int) -> None:
+        self.path, self.motion_line = path, motion_line
+        self.toks = list(_tokens(lines, 0, motion_line))
+        self.pos = 0
+        self.joints: list[BvhJoint] = []
+        self.n_chan = 0
+        self.stack: list[int] = []  # open joints
 
-    def err(msg: str, ln: int | None = None) -> BvhError:
+    def err(self, msg: str, ln: int | None = None) -> BvhError:
         if ln is None:
-            ln = toks[pos][1] if pos < len(toks) else motion_line + 1
-        return BvhError(f"{path}:{ln}: {msg}")
+            ln = self.toks[self.pos][1] if self.pos < len(self.toks) else self.motion_line + 1
+        return BvhError(f"{self.path}:{ln}: {msg}")
 
-    def nxt(what: str) -> tuple[str, int]:
-        nonlocal pos
-        if pos >= len(toks):
-            raise err(f"unexpected end of HIERARCHY, expected {what}")
-        tok = toks[pos]
-        pos += 1
+    def nxt(self, what: str) -> tuple[str, int]:
+        if self.pos >= len(self.toks):
+            raise self.err(f"unexpected end of HIERARCHY, expected {what}")
+        tok = self.toks[self.pos]
+        self.pos += 1
         return tok
 
-    def numbers(n: int, what: str) -> np.ndarray:
+    def keyword(self, word: str, context: str = "", hint: str = "") -> int:
+        """Consume ``word`` (any case); returns its line."""
+        tok, ln = self.nxt(word)
+        if tok.upper() != word:
+            raise self.err(f"{context}expected {word}, got {tok!r}{hint}", ln)
+        return ln
+
+    def numbers(self, n: int, what: str) -> np.ndarray:
         vals = []
         for _ in range(n):
-            tok, ln = nxt(what)
+            tok, ln = self.nxt(what)
             try:
                 vals.append(float(tok))
             except ValueError:
-                raise err(f"{what}: expected a number, got {tok!r}", ln) from None
+                raise self.err(f"{what}: expected a number, got {tok!r}", ln) from None
         return np.asarray(vals)
 
-    tok, ln = nxt("HIERARCHY")
-    if tok.upper() != "HIERARCHY":
-        raise err(f"expected HIERARCHY, got {tok!r} (not a BVH file?)", ln)
-    joints: list[BvhJoint] = []
-    n_chan = 0
-    stack: list[int] = []  # open joints; -2 marks an End Site block
-
-    tok, ln = nxt("ROOT")
-    if tok.upper() != "ROOT":
-        raise err(f"expected ROOT, got {tok!r}", ln)
-    kind = "ROOT"
-    while True:
-        if kind in ("ROOT", "JOINT"):
-            name, ln = nxt("joint name")
-            if name == "{":
-                raise err(f"{kind} without a name", ln)
-            if name in (j.name for j in joints):
-                raise err(f"duplicated joint name {name!r}", ln)
-            if nxt("{")[0] != "{":
-                raise err(f"expected '{{' after {kind} {name}", ln)
-            parent = stack[-1] if stack else -1
-            tok, ln = nxt("OFFSET")
-            if tok.upper() != "OFFSET":
-                raise err(f"joint {name}: expected OFFSET, got {tok!r}", ln)
-            off = numbers(3, f"joint {name} OFFSET")
-            tok, ln = nxt("CHANNELS")
-            if tok.upper() != "CHANNELS":
-                raise err(f"joint {name}: expected CHANNELS, got {tok!r}", ln)
-            cnt_tok, ln = nxt("channel count")
-            if not cnt_tok.isdigit() or not 0 <= int(cnt_tok) <= 9:
-                raise err(f"joint {name}: bad channel count {cnt_tok!r}", ln)
-            chans = []
-            for _ in range(int(cnt_tok)):
-                c, ln = nxt("channel name")
-                if len(c) < 2 or c[0].upper() not in _AXES or c[1:].lower() not in ("position", "rotation"):
-                    raise err(f"joint {name}: unknown channel {c!r} (expected [XYZ]position or [XYZ]rotation)", ln)
-                chans.append(c)
-            joints.append(BvhJoint(name, parent, off, chans, None, n_chan))
-            n_chan += len(chans)
-            stack.append(len(joints) - 1)
-        elif kind == "END":
-            site, ln = nxt("Site")
-            if site.lower() != "site" or nxt("{")[0] != "{":
-                raise err("expected 'End Site {'", ln)
-            tok, ln = nxt("OFFSET")
-            if tok.upper() != "OFFSET":
-                raise err(f"End Site: expected OFFSET, got {tok!r}", ln)
-            if not stack or stack[-1] < 0:
-                raise err("End Site outside a joint", ln)
-            joints[stack[-1]].end_site = numbers(3, "End Site OFFSET")
-            if nxt("}")[0] != "}":
-                raise err("expected '}' closing End Site")
-        # what follows: JOINT, End Site, or closing braces
-        while True:
-            if pos >= len(toks):
-                if stack:
-                    raise err(
-                        f"unexpected end of HIERARCHY: {len(stack)} unclosed '{{' (joint {joints[stack[-1]].name})"
-                    )
-                break
-            tok, ln = nxt("JOINT, End Site or '}'")
-            if tok == "}":
-                if not stack:
-                    raise err("unbalanced '}'", ln)
-                stack.pop()
-                continue
-            if tok.upper() in ("JOINT", "END") and not stack:
-                raise err(f"{tok} after the root joint was closed", ln)
-            if tok.upper() == "JOINT":
-                kind = "JOINT"
-            elif tok.upper() == "END":
-                kind = "END"
-            elif tok.upper() == "ROOT":
-                raise err("several ROOT joints are not supported", ln)
+    def parse(self) -> list[BvhJoint]:
+        """All joints, with their channels and End Sites."""
+        self.keyword("HIERARCHY", hint=" (not a BVH file?)")
+        self.keyword("ROOT")
+        kind: str | None = "ROOT"
+        while kind is not None:
+            if kind == "END":
+                self.end_site()
             else:
-                raise err(f"expected JOINT, End Site or '}}', got {tok!r}", ln)
-            break
-        if pos >= len(toks) and not stack:
-            break
-    if n_chan == 0:
-        raise BvhError(f"{path}: the hierarchy has no channels")
+                self.joint(kind)
+            kind = self.next_block()
+        if self.n_chan == 0:
+            raise BvhError(f"{self.path}: the hierarchy has no channels")
+        return self.joints
 
-    # MOTION header
+    def joint(self, kind: str) -> None:
+        """``NAME { OFFSET x y z CHANNELS n ...``: the joint is opened (its children follow)."""
+        name, ln = self.nxt("joint name")
+        if name == "{":
+            raise self.err(f"{kind} without a name", ln)
+        if name in (j.name for j in self.joints):
+            raise self.err(f"duplicated joint name {name!r}", ln)
+        if self.nxt("{")[0] != "{":
+            raise self.err(f"expected '{{' after {kind} {name}", ln)
+        parent = self.stack[-1] if self.stack else -1
+        self.keyword("OFFSET", f"joint {name}: ")
+        off = self.numbers(3, f"joint {name} OFFSET")
+        self.keyword("CHANNELS", f"joint {name}: ")
+        chans = self.channels(name)
+        self.joints.append(BvhJoint(name, parent, off, chans, None, self.n_chan))
+        self.n_chan += len(chans)
+        self.stack.append(len(self.joints) - 1)
+
+    def channels(self, joint: str) -> list[str]:
+        cnt_tok, ln = self.nxt("channel count")
+        if not cnt_tok.isdigit() or not 0 <= int(cnt_tok) <= 9:
+            raise self.err(f"joint {joint}: bad channel count {cnt_tok!r}", ln)
+        chans = []
+        for _ in range(int(cnt_tok)):
+            c, ln = self.nxt("channel name")
+            if len(c) < 2 or c[0].upper() not in _AXES or c[1:].lower() not in ("position", "rotation"):
+                raise self.err(f"joint {joint}: unknown channel {c!r} (expected [XYZ]position or [XYZ]rotation)", ln)
+            chans.append(c)
+        return chans
+
+    def end_site(self) -> None:
+        """``Site { OFFSET x y z }`` of the innermost open joint."""
+        site, ln = self.nxt("Site")
+        if site.lower() != "site" or self.nxt("{")[0] != "{":
+            raise self.err("expected 'End Site {'", ln)
+        self.keyword("OFFSET", "End Site: ")
+        self.joints[self.stack[-1]].end_site = self.numbers(3, "End Site OFFSET")
+        if self.nxt("}")[0] != "}":
+            raise self.err("expected '}' closing End Site")
+
+    def next_block(self) -> str | None:
+        """Close joints up to the next ``JOINT`` or ``End`` (returned), or None at the end of the hierarchy."""
+        while self.pos < len(self.toks):
+            tok, ln = self.nxt("JOINT, End Site or '}'")
+            word = tok.upper()
+            if tok == "}":
+                if not self.stack:
+                    raise self.err("unbalanced '}'", ln)
+                self.stack.pop()
+            elif word in ("JOINT", "END"):
+                if not self.stack:
+                    raise self.err(f"{tok} after the root joint was closed", ln)
+                return word
+            elif word == "ROOT":
+                raise self.err("several ROOT joints are not supported", ln)
+            else:
+                raise self.err(f"expected JOINT, End Site or '}}', got {tok!r}", ln)
+        if self.stack:
+            name = self.joints[self.stack[-1]].name
+            raise self.err(f"unexpected end of HIERARCHY: {len(self.stack)} unclosed '{{' (joint {name})")
+        return None
+
+
+def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float, int]:
+    """``Frames:`` and ``Frame Time:`` after the MOTION line; returns (frames, frame time [s], next line)."""
     frames = frame_time = None
     ln = motion_line + 1
     while ln < len(lines) and (frames is None or frame_time is None):
@@ -284,28 +279,60 @@ def parse_bvh(path: str | Path) -> BvhData:
         raise BvhError(f"{path}: MOTION section lacks 'Frames:' or 'Frame Time:'")
     if not (frame_time > 0 and np.isfinite(frame_time)):
         raise BvhError(f"{path}: Frame Time must be > 0, got {frame_time}")
-    data_lines = [(i, s) for i in range(ln, len(lines)) if (s := lines[i].strip())]
+    return frames, frame_time, ln
+
+
+def _motion_matrix(path: Path, lines: list[str], start: int, n_chan: int) -> np.ndarray:
+    """(T, n_chan) channel values of the non-empty lines from ``start``; errors name the bad line."""
+    data_lines = [(i, s) for i in range(start, len(lines)) if (s := lines[i].strip())]
     try:
         flat = np.array(" ".join(s for _, s in data_lines).split(), dtype=np.float64)
         ok = flat.size == len(data_lines) * n_chan
     except ValueError:
         ok = False
     if not ok:
-        for k, (i, s) in enumerate(data_lines):
-            parts = s.split()
-            if len(parts) != n_chan:
-                raise BvhError(f"{path}:{i + 1}: frame {k} has {len(parts)} values, the hierarchy declares {n_chan}")
-            for p_ in parts:
-                try:
-                    float(p_)
-                except ValueError:
-                    raise BvhError(f"{path}:{i + 1}: not a number: {p_!r}") from None
+        _raise_bad_row(path, data_lines, n_chan)
     motion = flat.reshape(len(data_lines), n_chan)
     if not np.all(np.isfinite(motion)):
         bad = int(np.argmax(~np.all(np.isfinite(motion), axis=1)))
         raise BvhError(f"{path}:{data_lines[bad][0] + 1}: frame {bad} contains NaN or inf")
     if len(motion) == 0:
         raise BvhError(f"{path}: no frames in MOTION")
+    return motion
+
+
+def _raise_bad_row(path: Path, data_lines: list[tuple[int, str]], n_chan: int) -> None:
+    """Raise for the first frame line with a wrong value count or a value that is not a number."""
+    for k, (i, s) in enumerate(data_lines):
+        parts = s.split()
+        if len(parts) != n_chan:
+            raise BvhError(f"{path}:{i + 1}: frame {k} has {len(parts)} values, the hierarchy declares {n_chan}")
+        for p_ in parts:
+            try:
+                float(p_)
+            except ValueError:
+                raise BvhError(f"{path}:{i + 1}: not a number: {p_!r}") from None
+
+
+def parse_bvh(path: str | Path) -> BvhData:
+    """Parse a BVH file.
+
+    Raises:
+        BvhError: with the file name and line number of the first problem.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise BvhError(f"{path}: cannot read ({exc.strerror})") from None
+    lines = text.splitlines()
+    motion_line = next((i for i, ln in enumerate(lines) if ln.strip().upper().startswith("MOTION")), None)
+    if motion_line is None:
+        raise BvhError(f"{path}: no MOTION section (truncated or not a BVH file)")
+    hierarchy = _Hierarchy(path, lines, motion_line)
+    joints = hierarchy.parse()
+    frames, frame_time, first = _motion_header(path, lines, motion_line)
+    motion = _motion_matrix(path, lines, first, hierarchy.n_chan)
     if len(motion) != frames:
         log.warning("%s: header says %d frames, file holds %d; using %d", path, frames, len(motion), len(motion))
     return BvhData(joints, frame_time, motion)
@@ -341,102 +368,91 @@ def read_bvh_clip(
     t_start = time.perf_counter()
     path = Path(path)
     data = parse_bvh(path)
+    smap, bones, hips = _resolve_rig(data, skeleton_map, path)
+    if position_mode == "auto":
+        position_mode = data.detect_position_mode()
+    R, p = data.forward_kinematics(position_mode)
+    src_p, src_R = _bone_frames(data, bones, R, p)
+    units, scale = unit_scale(units, arm_length(src_p))
+    top = trunk_top(src_p)
+    up, A = up_axis(up, src_p[top] - src_p["pelvis"] if top else None, str(path))
+    hip_p = {side: p[:, data.index(joint)] for side, joint in hips.items()}
+    C, pelvis_from = _pelvis_offset(src_p, src_R, hip_p, top, A, path)
+    world_p = {b: scale * np.einsum("ij,tj->ti", A, v) for b, v in src_p.items()}
+    world_R = {b: A @ v for b, v in src_R.items()}
+    meta = {
+        "skeleton_map": smap.name,
+        "joints": dict(bones),
+        "units": units,
+        "up": up,
+        "position_mode": position_mode,
+        "pelvis_frame_from": pelvis_from,
+    }
+    fps = _fps(data.frame_time)
+    return clip_from_file(path, "bvh", fps, world_p, world_p["pelvis"], world_R["pelvis"] @ C, world_R, t_start, meta)
+
+
+def _resolve_rig(
+    data: BvhData, skeleton_map: SkeletonMap | str | Path | None, path: Path
+) -> tuple[SkeletonMap, dict[str, str], dict[str, str]]:
+    """The skeleton map (given or detected), canonical bone -> joint spec, and hip side -> joint."""
     names = data.names
     # a zero-length End Site (some Bandai files) carries no hand-tip information
     end_sites = {j.name for j in data.joints if j.end_site is not None and np.linalg.norm(j.end_site) > 0}
     if skeleton_map is None:
-        smap, bones, hips = detect_map(names, end_sites, str(path))
-    else:
-        smap = skeleton_map if isinstance(skeleton_map, SkeletonMap) else load_skeleton_map(skeleton_map)
-        bones, hips = smap.resolve(names, end_sites)
-        detect_map(names, end_sites, str(path), maps=(smap,))  # raises with the full diagnosis if incomplete
-    if position_mode == "auto":
-        position_mode = data.detect_position_mode()
-    R, p = data.forward_kinematics(position_mode)
+        return detect_map(names, end_sites, str(path))
+    smap = skeleton_map if isinstance(skeleton_map, SkeletonMap) else load_skeleton_map(skeleton_map)
+    bones, hips = smap.resolve(names, end_sites)
+    detect_map(names, end_sites, str(path), maps=(smap,))  # raises with the full diagnosis if incomplete
+    return smap, bones, hips
 
-    def point(spec: str) -> tuple[np.ndarray, np.ndarray]:
+
+def _bone_frames(
+    data: BvhData, bones: dict[str, str], R: np.ndarray, p: np.ndarray
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Canonical bone -> (T, 3) position and (T, 3, 3) frame in the file's world, from the joint frames
+    R (T, J, 3, 3), p (T, J, 3); a spec ``"Joint/end"`` is the joint's End Site."""
+    src_p, src_R = {}, {}
+    for b, spec in bones.items():
         joint, _, tail = spec.partition("/")
         ji = data.index(joint)
-        if tail == "end":
-            return p[:, ji] + R[:, ji] @ data.joints[ji].end_site, R[:, ji]
-        return p[:, ji], R[:, ji]
+        src_p[b] = p[:, ji] + R[:, ji] @ data.joints[ji].end_site if tail == "end" else p[:, ji]
+        src_R[b] = R[:, ji]
+    return src_p, src_R
 
-    src_p = {b: point(s)[0] for b, s in bones.items()}
-    src_R = {b: point(s)[1] for b, s in bones.items()}
 
-    # units from the arm length (upper arm + forearm ~ 0.45-0.65 m for adults)
-    arm = np.mean(
-        [
-            np.linalg.norm(src_p[f"{s}_shoulder"][0] - src_p[f"{s}_elbow"][0])
-            + np.linalg.norm(src_p[f"{s}_elbow"][0] - src_p[f"{s}_wrist"][0])
-            for s in ("left", "right")
-        ]
-    )
-    if units == "auto":
-        units = "m" if arm < 2.0 else "cm" if arm < 150.0 else "mm"
-    if units not in UNIT_SCALES:
-        raise ClipError(f"units {units!r}; choose auto or one of {list(UNIT_SCALES)}")
-    scale = UNIT_SCALES[units]
+def _pelvis_offset(
+    src_p: dict[str, np.ndarray],
+    src_R: dict[str, np.ndarray],
+    hip_p: dict[str, np.ndarray],
+    top: str | None,
+    A: np.ndarray,
+    path: Path,
+) -> tuple[np.ndarray, str]:
+    """Constant rotation C (3, 3) in the pelvis joint frame whose axes are the canonical pelvis frame.
 
-    # up axis from the pelvis -> upper body direction, median over the clip
-    top = next((b for b in ("head", "neck", "chest", "spine") if b in src_p), None)
-    up_vec = np.median(src_p[top] - src_p["pelvis"], axis=0) if top else None
-    if up == "auto":
-        if up_vec is None:
-            raise ClipError(f"{path}: cannot detect the up axis (no spine/neck/head mapped); pass up='y' or 'z'")
-        k = int(np.argmax(np.abs(up_vec)))
-        if k == 0 or up_vec[k] < 0:
-            raise ClipError(
-                f"{path}: the body points along {'-+'[up_vec[k] > 0]}{'XYZ'[k]}; only +Y or +Z up is supported"
-            )
-        up = "xyz"[k]
-    if up not in ("y", "z"):
-        raise ClipError(f"up {up!r}; choose auto, y or z")
-    A = Y_UP_TO_Z_UP if up == "y" else np.eye(3)
-
-    world_p = {b: scale * np.einsum("ij,tj->ti", A, v) for b, v in src_p.items()}
-    world_R = {b: A @ v for b, v in src_R.items()}
-
-    # Pelvis frame: constant rotation C in the pelvis joint frame, from the
-    # average spine direction (z) and right -> left hip direction (y).
-    Rp, pp = src_R["pelvis"], src_p["pelvis"]
-    Rpt = np.swapaxes(Rp, 1, 2)
+    z is the mean pelvis -> ``top`` direction and y the mean right -> left hip (else shoulder)
+    direction, both seen from the pelvis joint frame over the clip. Returns (C, "hips" or "shoulders").
+    """
+    Rpt = np.swapaxes(src_R["pelvis"], 1, 2)
 
     def mean_local(v: np.ndarray) -> np.ndarray:
         return np.mean(np.einsum("tij,tj->ti", Rpt, v), axis=0)
 
-    up_local = mean_local(src_p[top] - pp) if top else np.linalg.inv(A) @ np.array([0.0, 0.0, 1.0]) @ Rp[0]
-    if "left" in hips and "right" in hips:
-        left_src = p[:, data.index(hips["left"])] - p[:, data.index(hips["right"])]
-        pelvis_from = "hips"
+    if top:
+        up_local = mean_local(src_p[top] - src_p["pelvis"])
     else:
-        left_src = src_p["left_shoulder"] - src_p["right_shoulder"]
-        pelvis_from = "shoulders"
-    C = frame_from_axes(up_local, mean_local(left_src))
+        up_local = np.linalg.inv(A) @ np.array([0.0, 0.0, 1.0]) @ src_R["pelvis"][0]
+    left, pelvis_from = left_axis(
+        [
+            ("hips", hip_p.get("left"), hip_p.get("right")),
+            ("shoulders", src_p["left_shoulder"], src_p["right_shoulder"]),
+        ]
+    )
+    C = frame_from_axes(up_local, mean_local(left))
     if not np.all(np.isfinite(C)):
         raise ClipError(f"{path}: cannot orient the pelvis frame (spine parallel to the hip axis)")
-    root_R = world_R["pelvis"] @ C
-    clip = clip_from_world(
-        path.stem,
-        _fps(data.frame_time),
-        world_p,
-        world_p["pelvis"],
-        root_R,
-        world_R,
-        source=f"bvh:{path.name}",
-        meta={
-            "path": str(path),
-            "format": "bvh",
-            "skeleton_map": smap.name,
-            "joints": {b: s for b, s in bones.items()},
-            "units": units,
-            "up": up,
-            "position_mode": position_mode,
-            "pelvis_frame_from": pelvis_from,
-            "parse_s": time.perf_counter() - t_start,
-        },
-    )
-    return clip
+    return C, pelvis_from
 
 
 # --------------------------------------------------------------------------- writing

@@ -19,21 +19,20 @@ direction). C3D gives no bone orientations: quaternions are identity and
 
 from __future__ import annotations
 
-import json
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from services.ingest.clip import Clip, clip_from_world
-from services.ingest.errors import C3dError, ClipError
-from services.ingest.rotations import Y_UP_TO_Z_UP, frame_from_axes
+from services.ingest.body_frame import left_axis, unit_scale, up_axis
+from services.ingest.clip import Clip, clip_from_file
+from services.ingest.errors import C3dError
+from services.ingest.map_files import name_list, read_map_file
+from services.ingest.rotations import frame_from_axes
 from shared.messages import HUMAN_BONES
 
-_UNITS = {"mm": 0.001, "cm": 0.01, "m": 1.0}
 _PELVIS_KEYS = ("left_front", "right_front", "left_back", "right_back")
 
 
@@ -123,18 +122,10 @@ def load_marker_map(path: str | Path) -> MarkerMap:
         C3dError: unreadable file or unknown keys.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-        d = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
-    except (OSError, ValueError) as exc:
-        raise C3dError(f"marker map {path}: cannot read ({exc})") from None
+    d = read_map_file(path, "marker map", C3dError)
 
     def names(v: Any, where: str) -> tuple[str, ...]:
-        if isinstance(v, str):
-            return (v,)
-        if isinstance(v, list) and v and all(isinstance(x, str) for x in v):
-            return tuple(v)
-        raise C3dError(f"marker map {path}: {where} must be a marker name or a list of names")
+        return name_list(v, f"marker map {path}: {where} must be a marker name", C3dError)
 
     joints = d.get("joints")
     if not isinstance(joints, dict) or not joints:
@@ -176,6 +167,129 @@ def _choose(labels: list[str], maps: tuple[MarkerMap, ...], prefix: str | None) 
     return best
 
 
+def _open_c3d(path: Path) -> tuple[list[str], np.ndarray, str, float]:
+    """Labels, (3, n_markers, T) points [file units], unit and rate [Hz] of a C3D file."""
+    import ezc3d
+
+    if not path.is_file():
+        raise C3dError(f"{path}: no such file")
+    try:
+        c = ezc3d.c3d(str(path))
+    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on corrupt files
+        raise C3dError(f"{path}: ezc3d cannot read it ({type(exc).__name__}: {exc})") from None
+    params = c["parameters"]["POINT"]
+    labels = [str(s).strip() for s in params["LABELS"]["value"]]
+    pts = np.asarray(c["data"]["points"][:3], dtype=float)
+    unit = str(params["UNITS"]["value"][0]).strip().lower() if "UNITS" in params else "mm"
+    rate = float(np.asarray(params["RATE"]["value"]).ravel()[0])
+    if not rate > 0:
+        raise C3dError(f"{path}: POINT:RATE must be > 0, got {rate}")
+    return labels, pts, unit, rate
+
+
+class _Markers:
+    """One subject's marker trajectories, (T, 3) [m] by name; occluded (NaN or zeroed) samples are NaN."""
+
+    def __init__(self, labels: list[str], pts: np.ndarray, scale: float, prefix: str) -> None:
+        self.index = {lb: i for i, lb in enumerate(labels)}
+        self.xyz = np.moveaxis(pts, 0, -1) * scale  # (n_markers, T, 3)
+        self.xyz[np.all(self.xyz == 0.0, axis=-1)] = np.nan
+        self.prefix = prefix
+
+    def get(self, name: str) -> np.ndarray | None:
+        i = self.index.get(self.prefix + name)
+        return None if i is None else self.xyz[i]
+
+    def mean(self, names: tuple[str, ...]) -> np.ndarray | None:
+        """Mean of the markers (NaN where any is occluded, by design), None if one is missing."""
+        arrs = [self.get(n) for n in names]
+        if any(a is None for a in arrs):
+            return None
+        return np.mean(arrs, axis=0)
+
+
+@dataclass
+class _Landmarks:
+    """Joint centres and root markers of a clip, (T, 3) [m] in the file's axes (or our Z-up ones).
+
+    Attributes:
+        joints: canonical bone -> centre. pelvis: _PELVIS_KEYS -> marker, or None (not all in the file).
+        thorax: (top, bottom) marker means, or None. top_pair: the first two top markers, or None.
+    """
+
+    joints: dict[str, np.ndarray]
+    pelvis: dict[str, np.ndarray] | None
+    thorax: tuple[np.ndarray, np.ndarray] | None
+    top_pair: tuple[np.ndarray, np.ndarray] | None
+
+    @classmethod
+    def find(cls, m: _Markers, mmap: MarkerMap) -> _Landmarks:
+        joints = {b: v for b, ms in mmap.joints.items() if (v := m.mean(ms)) is not None}
+        pelvis = {k: m.get(v) for k, v in mmap.pelvis.items()}
+        thorax = (m.mean(mmap.thorax["top"]), m.mean(mmap.thorax["bottom"])) if mmap.thorax else (None, None)
+        complete = thorax[0] is not None and thorax[1] is not None
+        return cls(
+            joints,
+            pelvis if pelvis and all(v is not None for v in pelvis.values()) else None,
+            thorax if complete else None,
+            tuple(m.get(n) for n in mmap.thorax["top"][:2]) if complete else None,
+        )
+
+    def arms(self) -> list[str]:
+        return [s for s in ("left", "right") if f"{s}_elbow" in self.joints and f"{s}_wrist" in self.joints]
+
+    def trunk(self) -> np.ndarray | None:
+        """(T, 3) lower -> upper trunk vectors, or None."""
+        if self.pelvis is not None:
+            base = np.nanmean(np.stack(list(self.pelvis.values())), axis=0)
+            shoulder = self.joints.get(f"{self.arms()[0]}_shoulder")
+            top = self.thorax[0] if self.thorax else self.joints.get("neck", shoulder)
+        else:
+            base, top = self.thorax[1], self.thorax[0]
+        return None if top is None else top - base
+
+    def rotated(self, A: np.ndarray) -> _Landmarks:
+        """The same landmarks in the axes ``p' = A @ p``."""
+
+        def rot(v):
+            return None if v is None else v @ A.T
+
+        return _Landmarks(
+            {b: rot(v) for b, v in self.joints.items()},
+            None if self.pelvis is None else {k: rot(v) for k, v in self.pelvis.items()},
+            None if self.thorax is None else (rot(self.thorax[0]), rot(self.thorax[1])),
+            None if self.top_pair is None else (rot(self.top_pair[0]), rot(self.top_pair[1])),
+        )
+
+    def root_frame(self) -> tuple[np.ndarray, np.ndarray, str]:
+        """Root origin (T, 3), axes (T, 3, 3) (NaN where occluded) and what they came from."""
+        if self.pelvis is not None:
+            P = self.pelvis
+            left, _ = left_axis([("pelvis", P["left_front"], P["right_front"])])
+            fwd = 0.5 * (P["left_front"] + P["right_front"]) - 0.5 * (P["left_back"] + P["right_back"])
+            root_p = np.mean([P[k] for k in _PELVIS_KEYS], axis=0)
+            return root_p, frame_from_axes(np.cross(fwd, left), left), "pelvis"
+        top, bottom = self.thorax
+        shoulders = left_axis([("shoulders", self.joints.get("left_shoulder"), self.joints.get("right_shoulder"))])
+        if shoulders is not None:
+            left = shoulders[0]
+        else:
+            # sternum-side minus spine-side marker of the top pair points forward
+            t0, t1 = self.top_pair
+            left = np.cross(top - bottom, t0 - t1)
+        return bottom, frame_from_axes(top - bottom, left), "thorax"
+
+
+def _lower_shoulders(joints: dict[str, np.ndarray], z_root: np.ndarray, drop: float) -> dict[str, np.ndarray]:
+    """Acromion -> gleno-humeral centre: lowered along the root z (T, 3) by drop * |acromion - elbow|."""
+    out = dict(joints)
+    for s in ("left", "right"):
+        sh, el = out.get(f"{s}_shoulder"), out.get(f"{s}_elbow")
+        if sh is not None and el is not None and drop:
+            out[f"{s}_shoulder"] = sh - drop * np.linalg.norm(sh - el, axis=1, keepdims=True) * z_root
+    return out
+
+
 def read_c3d_clip(
     path: str | Path,
     marker_map: MarkerMap | str | Path | None = None,
@@ -193,123 +307,29 @@ def read_c3d_clip(
     Raises:
         C3dError: unreadable file, no usable root or arm markers (the text lists the labels found).
     """
-    import ezc3d
-
     t_start = time.perf_counter()
     path = Path(path)
-    if not path.is_file():
-        raise C3dError(f"{path}: no such file")
-    try:
-        c = ezc3d.c3d(str(path))
-    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on corrupt files
-        raise C3dError(f"{path}: ezc3d cannot read it ({type(exc).__name__}: {exc})") from None
-    params = c["parameters"]["POINT"]
-    labels = [str(s).strip() for s in params["LABELS"]["value"]]
-    pts = np.asarray(c["data"]["points"][:3], dtype=float)  # (3, n_markers, T)
-    unit = str(params["UNITS"]["value"][0]).strip().lower() if "UNITS" in params else "mm"
-    if unit not in _UNITS:
-        raise C3dError(f"{path}: unknown POINT:UNITS {unit!r}; supported: {list(_UNITS)}")
-    rate = float(np.asarray(params["RATE"]["value"]).ravel()[0])
-    if not rate > 0:
-        raise C3dError(f"{path}: POINT:RATE must be > 0, got {rate}")
-
-    if marker_map is None:
-        mmap, pre, n_found = _choose(labels, BUILTIN_MARKER_MAPS, prefix)
-    else:
-        mmap = marker_map if isinstance(marker_map, MarkerMap) else load_marker_map(marker_map)
-        mmap, pre, n_found = _choose(labels, (mmap,), prefix)
-    index = {lb: i for i, lb in enumerate(labels)}
-    # (T, 3) per marker in metres; occluded or zeroed -> NaN
-    xyz = np.moveaxis(pts, 0, -1) * _UNITS[unit]  # (n_markers, T, 3)
-    xyz[np.all(xyz == 0.0, axis=-1)] = np.nan
-
-    def marker(name: str) -> np.ndarray | None:
-        i = index.get(pre + name)
-        return None if i is None else xyz[i]
-
-    def mean(names: tuple[str, ...]) -> np.ndarray | None:
-        arrs = [marker(n) for n in names]
-        if any(a is None for a in arrs):
-            return None
-        return np.mean(arrs, axis=0)  # NaN if any is occluded, by design
-
-    raw = {b: v for b, ms in mmap.joints.items() if (v := mean(ms)) is not None}
-    pelvis = {k: marker(v) for k, v in mmap.pelvis.items()}
-    has_pelvis = bool(pelvis) and all(v is not None for v in pelvis.values())
-    top = mean(mmap.thorax["top"]) if mmap.thorax else None
-    bottom = mean(mmap.thorax["bottom"]) if mmap.thorax else None
-    has_thorax = top is not None and bottom is not None
-    arms = [s for s in ("left", "right") if f"{s}_elbow" in raw and f"{s}_wrist" in raw]
-    if not arms or not (has_pelvis or has_thorax):
-        wanted = [b for b in HUMAN_BONES[1:] if b not in raw]
+    labels, pts, unit, rate = _open_c3d(path)
+    unit, scale = unit_scale(unit, where=f"{path}: POINT:UNITS", error=C3dError)
+    maps = BUILTIN_MARKER_MAPS if marker_map is None else (_as_marker_map(marker_map),)
+    mmap, pre, n_found = _choose(labels, maps, prefix)
+    found = _Landmarks.find(_Markers(labels, pts, scale, pre), mmap)
+    arms = found.arms()
+    if not arms or not (found.pelvis or found.thorax):
+        wanted = [b for b in HUMAN_BONES[1:] if b not in found.joints]
         raise C3dError(
             f"{path}: marker map '{mmap.name}' (prefix {pre!r}) found {n_found} of its markers; "
             f"{'no elbow+wrist pair' if not arms else 'no pelvis or thorax markers for the root frame'}. "
             f"Unmapped bones: {wanted}. Labels in the file: {labels}. Pass a marker map file (see README)."
         )
+    trunk = found.trunk()
+    up, A = up_axis(up, np.array([[0.0, 0.0, 1.0]]) if trunk is None else trunk, str(path), C3dError)
+    found = found.rotated(A)
+    root_p, root_R, root_from = found.root_frame()
+    world = _lower_shoulders(found.joints, root_R[:, :, 2], mmap.shoulder_drop)
+    meta = {"marker_map": mmap.name, "prefix": pre, "units": unit, "up": up, "root_from": root_from}
+    return clip_from_file(path, "c3d", rate, world, root_p, root_R, None, t_start, meta)
 
-    # up axis of the file: lower -> upper trunk
-    if has_pelvis:
-        base = np.nanmean(np.stack(list(pelvis.values())), axis=0)
-        trunk = top if has_thorax else raw.get("neck", raw.get(f"{arms[0]}_shoulder"))
-    else:
-        base, trunk = bottom, top
-    if up == "auto":
-        v = np.nanmedian(trunk - base, axis=0) if trunk is not None else np.array([0.0, 0.0, 1.0])
-        k = int(np.argmax(np.abs(v)))
-        if k == 0 or v[k] < 0:
-            raise C3dError(f"{path}: trunk points along {'-+'[v[k] > 0]}{'XYZ'[k]}; pass up='y' or 'z'")
-        up = "xyz"[k]
-    if up not in ("y", "z"):
-        raise ClipError(f"up {up!r}; choose auto, y or z")
-    A = Y_UP_TO_Z_UP if up == "y" else np.eye(3)
 
-    def rot(v: np.ndarray | None) -> np.ndarray | None:
-        return None if v is None else v @ A.T
-
-    raw = {b: rot(v) for b, v in raw.items()}
-    if has_pelvis:
-        P = {k: rot(v) for k, v in pelvis.items()}
-        root_p = np.mean([P[k] for k in _PELVIS_KEYS], axis=0)
-        left = P["left_front"] - P["right_front"]
-        fwd = 0.5 * (P["left_front"] + P["right_front"]) - 0.5 * (P["left_back"] + P["right_back"])
-        root_R = frame_from_axes(np.cross(fwd, left), left)
-        root_from = "pelvis"
-    else:
-        top, bottom = rot(top), rot(bottom)
-        root_p = bottom
-        if "left_shoulder" in raw and "right_shoulder" in raw:
-            left = raw["left_shoulder"] - raw["right_shoulder"]
-        else:
-            # sternum-side minus spine-side marker of the top pair points forward
-            t0, t1 = (rot(marker(n)) for n in mmap.thorax["top"][:2])
-            left = np.cross(top - bottom, t0 - t1)
-        root_R = frame_from_axes(top - bottom, left)
-        root_from = "thorax"
-
-    world = dict(raw)
-    zr = root_R[:, :, 2]
-    for s in ("left", "right"):
-        sh, el = world.get(f"{s}_shoulder"), world.get(f"{s}_elbow")
-        if sh is not None and el is not None and mmap.shoulder_drop:
-            world[f"{s}_shoulder"] = sh - mmap.shoulder_drop * np.linalg.norm(sh - el, axis=1, keepdims=True) * zr
-    clip = clip_from_world(
-        path.stem,
-        rate,
-        world,
-        root_p,
-        root_R,
-        None,
-        source=f"c3d:{path.name}",
-        meta={
-            "path": str(path),
-            "format": "c3d",
-            "marker_map": mmap.name,
-            "prefix": pre,
-            "units": unit,
-            "up": up,
-            "root_from": root_from,
-            "parse_s": time.perf_counter() - t_start,
-        },
-    )
-    return clip
+def _as_marker_map(marker_map: MarkerMap | str | Path) -> MarkerMap:
+    return marker_map if isinstance(marker_map, MarkerMap) else load_marker_map(marker_map)

@@ -33,7 +33,7 @@ from services.ingest.errors import ClipError
 from services.ingest.rotations import matrices_to_quats, quats_to_matrices
 from shared.messages import HUMAN_BONES, Bone, Header, HumanFrame, Pose
 
-__all__ = ["Clip", "ClipError", "clip_from_world", "load_clip"]
+__all__ = ["Clip", "ClipError", "clip_from_file", "clip_from_world", "load_clip"]
 
 _IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -201,6 +201,32 @@ def clip_from_world(
         source=source,
         has_orientation=world_R is not None,
         meta=dict(meta or {}),
+    )
+
+
+def clip_from_file(
+    path: Path,
+    fmt: str,
+    fps: float,
+    world_p: dict[str, np.ndarray],
+    root_p: np.ndarray,
+    root_R: np.ndarray,
+    world_R: dict[str, np.ndarray] | None,
+    t_start: float,
+    meta: dict[str, Any],
+) -> Clip:
+    """:func:`clip_from_world` for a file reader: the clip is named after the file, its source tag
+    is ``"<fmt>:<file name>"`` and its meta holds the path, the format, the reader's ``meta`` and the
+    read time since ``t_start`` (a :func:`time.perf_counter` value)."""
+    return clip_from_world(
+        path.stem,
+        fps,
+        world_p,
+        root_p,
+        root_R,
+        world_R,
+        source=f"{fmt}:{path.name}",
+        meta={"path": str(path), "format": fmt, **meta, "parse_s": time.perf_counter() - t_start},
     )
 
 

@@ -23,12 +23,11 @@ User map file (``--skeleton-map FILE``), TOML or JSON with the same keys::
 
 from __future__ import annotations
 
-import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from services.ingest.errors import SkeletonMapError
+from services.ingest.map_files import name_list, read_map_file
 from shared.messages import HUMAN_BONES
 
 #: Bones a rig must provide; the others are optional (flagged invalid when absent).
@@ -221,18 +220,10 @@ def load_skeleton_map(path: str | Path) -> SkeletonMap:
         SkeletonMapError: unreadable file, unknown canonical names, wrong types.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-        data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
-    except (OSError, ValueError) as exc:
-        raise SkeletonMapError(f"skeleton map {path}: cannot read ({exc})") from None
+    data = read_map_file(path, "skeleton map", SkeletonMapError)
 
     def cands(v, where) -> tuple[str, ...]:
-        if isinstance(v, str):
-            return (v,)
-        if isinstance(v, list) and v and all(isinstance(x, str) for x in v):
-            return tuple(v)
-        raise SkeletonMapError(f"skeleton map {path}: {where} must be a joint name or a list of names")
+        return name_list(v, f"skeleton map {path}: {where} must be a joint name", SkeletonMapError)
 
     raw = data.get("bones")
     if not isinstance(raw, dict) or not raw:

@@ -15,6 +15,9 @@ from shared.paths import REPO_ROOT
 
 REPO = REPO_ROOT
 CLIP = "dataset-1_bye_normal_001.bvh"
+#: Mean wrist error [cm] of the simulated robot on CLIP through the whole stack, unloaded machine:
+#: the issue 11 review's figure (the old bound, 5.0 cm, was ~30x it).
+WRIST_MEAN_CM = 0.17
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 
@@ -42,7 +45,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endpoint):
+def test_real_clip_flows_through_the_whole_stack(bvh_clips, mocap_sources, tmp_path, zenoh_endpoint):
     clip = next(c for c in bvh_clips if c.name == CLIP)
     summary_path = tmp_path / "summary.json"
     argv = [
@@ -80,7 +83,7 @@ def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endp
     s = json.loads(summary_path.read_text())
 
     frames = s["services"]["publish/main"]["out"]
-    assert frames == 111  # the clip's frame count (SOURCES.md), all published
+    assert frames == mocap_sources.frames(CLIP)  # every frame of the clip published
     # Every published frame came through retarget, and reached the simulated robot.
     assert s["services"]["retarget/main"]["in"] == frames
     assert s["services"]["retarget/main"]["out"] == frames
@@ -94,7 +97,10 @@ def test_real_clip_flows_through_the_whole_stack(bvh_clips, tmp_path, zenoh_endp
     assert reached >= 0.9 * frames, s["latency_ms"]
     assert frames - reached <= skipped
     # The robot follows: wrist error measured on the simulated robot (last state of each frame).
-    assert s["wrist_err_cm"]["mean"] < 5.0, s["wrist_err_cm"]
+    # Bound: twice the figure of an unloaded run (WRIST_MEAN_CM). On a machine so loaded that the
+    # stack falls behind real time the error grows (6.1 cm at load 20 on 2 cores), but then fewer
+    # than 90 % of the frames reach the robot and the check above fails first (46 of 111 there).
+    assert s["wrist_err_cm"]["mean"] < 2 * WRIST_MEAN_CM, s["wrist_err_cm"]
     # No joint ever commanded past its limits; the simulated joints stay within them
     # up to the servo's compliance.
     assert s["max_command_limit_excess_rad"] <= 1e-9

@@ -69,14 +69,19 @@ def test_reachable_fk_targets_give_near_zero_error(robot, algo):
 
 
 def test_unreachable_offset_shows_up_as_that_offset(robot):
-    """Elbow targets 5 cm off a reachable motion (wrists exact): the strict hierarchy keeps the wrists
-    and misses each elbow by at least the part of the offset it cannot absorb, never by more than
-    the offset plus tracking error; the WQP gives some wrist accuracy away."""
+    """Elbow targets 5 cm above a reachable motion (wrists exact): the strict hierarchy keeps the wrists
+    and misses each elbow by the part of the offset the arm cannot absorb around the wrist (measured
+    3.32 cm mean, 4.77 cm max), never by more than the offset plus tracking error; the WQP gives
+    wrist accuracy away (0.31 cm mean) to come closer to the elbows (3.08 cm mean)."""
     off = {e: np.array([0.0, 0.0, 0.05]) for e in ("left_elbow", "right_elbow")}
     targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE), off)
     hqp = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
-    assert hqp["wrist_err_cm"]["mean"] < 0.02 and hqp["wrist_err_cm"]["max"] < 0.1
-    assert 0.5 < hqp["elbow_err_cm"]["mean"] <= 5.0 + 0.05
+    wqp = trace_metrics(run_algorithm(robot, targets, "wqp", qp="daqp"), robot)
+    assert hqp["wrist_err_cm"]["mean"] < 0.02 and hqp["wrist_err_cm"]["max"] < 0.1, hqp["wrist_err_cm"]
+    assert 3.0 < hqp["elbow_err_cm"]["mean"] < 3.6, hqp["elbow_err_cm"]
+    assert hqp["elbow_err_cm"]["max"] <= 5.0 + 0.05, hqp["elbow_err_cm"]
+    assert 0.2 < wqp["wrist_err_cm"]["mean"] < 0.45, wqp["wrist_err_cm"]
+    assert hqp["elbow_err_cm"]["mean"] - 0.5 < wqp["elbow_err_cm"]["mean"] < hqp["elbow_err_cm"]["mean"] - 0.1
 
 
 def test_wqp_weights_trade_elbow_against_wrist(robot):

@@ -1,0 +1,46 @@
+"""`mimic eval --paper` on a short slice of a real clip: the paper's setup is what runs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from services.cli import main as mimic_main
+from services.ingest.bvh import parse_bvh, write_bvh
+
+CLIP = "dataset-1_bye_normal_001.bvh"
+FRAMES = 45  # 1.5 s at 30 fps
+
+
+@pytest.fixture(scope="module")
+def short_clip(bvh_clips, tmp_path_factory):
+    """The first FRAMES frames of a real clip, as a BVH file of its own."""
+    data = parse_bvh(next(p for p in bvh_clips if p.name == CLIP))
+    data.motion = data.motion[:FRAMES]
+    return write_bvh(tmp_path_factory.mktemp("clip") / CLIP, data)
+
+
+def _eval(clip, tmp_path, *flags) -> dict:
+    out = tmp_path / f"eval{'_'.join(flags)}.json"
+    assert mimic_main(["eval", str(clip), "--algos", "hqp-nullspace", "--no-sim", "--json", str(out), *flags]) == 0
+    return json.loads(out.read_text())
+
+
+@pytest.mark.slow
+def test_paper_flag_applies_the_paper_setup(short_clip, tmp_path, capsys):
+    paper = _eval(short_clip, tmp_path, "--paper")
+    default = _eval(short_clip, tmp_path)
+    capsys.readouterr()
+    s = paper["settings"]
+    assert s["retarget"]["elbow_placement"] == "mapped"
+    assert s["retarget"]["orientation_reference"] == "rest"
+    assert s["solver"]["wrist_orientation_level"] == 1
+    d = default["settings"]
+    assert (d["retarget"]["elbow_placement"], d["retarget"]["orientation_reference"]) == ("swivel", "forearm")
+    assert d["solver"]["wrist_orientation_level"] != 1
+    assert paper["clips"][0]["frames"] == default["clips"][0]["frames"] == FRAMES
+    ep = paper["summary"]["hqp-nullspace"]["elbow_err_cm"]["mean"]
+    ed = default["summary"]["hqp-nullspace"]["elbow_err_cm"]["mean"]
+    print(paper["summary"], default["summary"])
+    assert ep > ed
