@@ -86,6 +86,8 @@ def blueprint(operator_offset: Iterable[float] = (0.0, 1.0, 0.0)) -> rrb.Bluepri
             ),
             column_shares=[3, 2],
         ),
+        # The monotonic timeline: stamp/seq start again with each clip and would overlay them.
+        rrb.TimePanel(state="collapsed", timeline="session"),
         collapse_panels=True,
     )
 
