@@ -70,12 +70,16 @@ def main(args: argparse.Namespace) -> int:
                 pub = pubs[due.key] = svc.session.declare_publisher(
                     due.key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
                 )
+            # Re-stamped before the wait (t0 = the due wall-clock time), so the re-encoding does not
+            # delay the publication itself.
+            wait = t_start + due.offset - time.monotonic() if due.offset > 0 else 0.0
+            data = due.data if args.keep_t0 else restamp(due.data, time.time_ns() + int(max(wait, 0.0) * 1e9))
             if due.offset > 0:
                 wait = t_start + due.offset - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
                 late.append(max(0.0, time.monotonic() - t_start - due.offset))
-            pub.put(due.data if args.keep_t0 else restamp(due.data, time.time_ns()))
+            pub.put(data)
             svc.status.published("replay")
             n += 1
         elapsed = time.monotonic() - t_start
