@@ -1,5 +1,6 @@
 # Two commands for a new user: `make demo` and `make test`. Both (re)create .venv and
-# install everything from PyPI by name when pyproject.toml changed.
+# install everything from PyPI by name when pyproject.toml changed. Setup includes the `train`
+# extra (CPU PyTorch) so the posture-training tests run; the services themselves do not need it.
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -7,14 +8,14 @@ STAMP  := $(VENV)/.installed
 # Real mocap clips, read at run time from beside the repo (shared/paths.py reads the same setting).
 MIMIC_MOCAP_DIR ?= ../shared/data/mocap
 
-.PHONY: setup demo test lint format bench eval clean
+.PHONY: setup demo test test-docker lint format bench eval clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
 	touch $(STAMP)
 
 demo: setup
@@ -23,6 +24,11 @@ demo: setup
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
+
+# The stack in containers through `docker compose` (tests/docker). With podman (default) it installs
+# podman, builds a local base image and mimic:latest as root; MIMIC_ENGINE=docker uses a running Docker.
+test-docker: setup
+	tests/docker/engine.sh
 
 lint: setup
 	$(BIN)/ruff check .

@@ -31,7 +31,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "follow": ("services.sim.follow_cli", "show or switch the solver the running sim follows (local solver swap)"),
     "log": ("services.logger.cli", "Rerun logger recording everything on the bus"),
     "eval": ("services.evaluation.cli", "offline evaluation of algorithms on clips (JSON + plots)"),
+    "posture": ("services.posture.cli", "learned posture policy from wrist-only input: train, bench, gate (seed 004)"),
     "bench": ("services.evaluation.bench_cli", "benchmarks (JSON): solvers, pipeline, logger, recorder, ingest, ..."),
+    "wbc-eval": ("services.wbc.cli", "seed 002 section 5: wheeled-legged arm reach in MuJoCo (JSON + Fig. 2(b))"),
     "record": ("services.recorder.record_cli", "record every bus message to MCAP"),
     "replay": ("services.recorder.replay_cli", "replay an MCAP recording onto the bus"),
 }

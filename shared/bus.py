@@ -4,11 +4,20 @@
   (``--mode --connect --listen --config --session``) and ``ZENOH_CONFIG``.
   Default: peer mode, multicast scouting off, connecting to the local router
   that ``mimic up`` starts on ``tcp/127.0.0.1:7447`` (``MIMIC_CONNECT``
-  overrides it, as docker-compose does).
+  overrides it, as docker-compose does; ``MIMIC_MODE`` the mode: client in containers).
 * :class:`ServiceRunner`: session, liveliness token, periodic
   :class:`~shared.messages.ServiceStatus`, SIGINT/SIGTERM handling.
 * :class:`LatestSlot`: newest-sample-wins mailbox for streams where staleness
-  matters; samples overwritten before being read are counted as dropped.
+  matters (or a bounded queue with ``depth``); samples overwritten before being
+  read are counted as dropped.
+* :class:`NumberedPublisher`: every sample carries ``(publisher id, number)`` in
+  its Zenoh attachment, so subscribers count the samples lost on the way (inside
+  Zenoh under congestion, in a router) as ``gaps.<stream>`` in their status.
+
+Congestion control is Zenoh's DROP for every stream: a real-time stream must never
+stall its publisher (a blocked solver tick or mocap loop delays every later
+message, which is worse than losing one), and what DROP loses is now counted by
+the receiver's gap counter instead of vanishing.
 """
 
 from __future__ import annotations
@@ -19,6 +28,7 @@ import logging
 import os
 import signal
 import socket
+import struct
 import sys
 import threading
 import time
@@ -31,6 +41,7 @@ import zenoh
 
 from shared.keys import DEFAULT_SESSION, Keys
 from shared.messages import MessageError, ServiceStatus
+from shared.sequence import GapCounter
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 log = logging.getLogger("mimic.bus")
@@ -45,7 +56,12 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--session", default=os.environ.get("MIMIC_SESSION", DEFAULT_SESSION), help="key prefix mimic/<session>"
     )
-    g.add_argument("--mode", choices=("peer", "client", "router"), default=None, help="Zenoh mode (default peer)")
+    g.add_argument(
+        "--mode",
+        choices=("peer", "client", "router"),
+        default=os.environ.get("MIMIC_MODE") or None,
+        help="Zenoh mode (default $MIMIC_MODE or peer)",
+    )
     g.add_argument(
         "--connect",
         action="append",
@@ -78,6 +94,10 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         connect = [e for e in os.environ.get("MIMIC_CONNECT", DEFAULT_ROUTER).split(",") if e]
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if json.loads(conf.get_json("mode") or "null") == "client" and conf.get_json("connect/timeout_ms") == "null":
+        # A client cannot start without its router: wait for it (retrying) instead of failing, as
+        # a container started beside the router's must. A lost router is reconnected to likewise.
+        conf.insert_json5("connect/timeout_ms", "-1")
     listen = getattr(args, "listen", None)
     if listen:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
@@ -183,8 +203,14 @@ class StatusCounters:
             self._outcomes[name] = self._outcomes.get(name, 0) + 1
 
     def dropped(self, stream: str, n: int = 1) -> None:
+        """Count messages this service received and discarded on purpose (newest-wins, full queue)."""
         self._count("dropped", n)
         self._count(f"dropped.{stream}", n)
+
+    def gaps(self, stream: str, n: int) -> None:
+        """Count messages that never arrived (publisher numbers skipped: lost in Zenoh or a router)."""
+        self._count("gaps", n)
+        self._count(f"gaps.{stream}", n)
 
     def reject(self, reason: str, detail: str) -> None:
         """Count a rejected input; log the first of each reason (then every 1000th)."""
@@ -221,6 +247,65 @@ class StatusCounters:
                 extra=dict(self.extra),
                 outcomes=dict(self._outcomes),
             )
+
+
+# --------------------------------------------------------------------------- numbered samples
+
+#: Attachment of a numbered sample: publisher id (u64), sample number (u64, from 1), little-endian.
+_NUMBER = struct.Struct("<QQ")
+
+
+class NumberedPublisher:
+    """A Zenoh publisher whose samples carry ``(publisher id, number)`` in the attachment.
+
+    The id is random per publisher (a restarted service is a new source); numbers count
+    from 1. Subscribers feed them to a :class:`~shared.sequence.GapCounter`.
+    Congestion control is DROP (see the module docstring).
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, express: bool = True):
+        self._pub = session.declare_publisher(key, express=express, congestion_control=zenoh.CongestionControl.DROP)
+        self.source = int.from_bytes(os.urandom(8), "little")
+        self.number = 0
+        # put() inside the lock: two threads must not send numbers out of order.
+        self._lock = threading.Lock()
+
+    def put(self, payload: bytes) -> None:
+        with self._lock:
+            self.number += 1
+            self._pub.put(payload, attachment=_NUMBER.pack(self.source, self.number))
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+    def __getattr__(self, name: str) -> Any:
+        # Everything else (key_expr, matching_status, ...) is the Zenoh publisher's.
+        if name == "_pub":  # not declared (the constructor failed): no recursion
+            raise AttributeError(name)
+        return getattr(self._pub, name)
+
+
+def sample_number(sample: zenoh.Sample) -> tuple[int, int] | None:
+    """``(publisher id, number)`` of a sample from a :class:`NumberedPublisher`; None for other publishers."""
+    att = sample.attachment
+    if att is None:
+        return None
+    raw = att.to_bytes()
+    return _NUMBER.unpack(raw) if len(raw) == _NUMBER.size else None
+
+
+def gap_watch(status: StatusCounters, stream: str) -> Callable[[zenoh.Sample], None]:
+    """Sample hook counting lost samples of ``stream`` per publisher into ``status`` (``gaps.<stream>``)."""
+    counter = GapCounter()
+
+    def watch(sample: zenoh.Sample) -> None:
+        num = sample_number(sample)
+        if num is not None:
+            gap = counter.see(*num)
+            if gap:
+                status.gaps(stream, gap)
+
+    return watch
 
 
 # --------------------------------------------------------------------------- mailboxes
@@ -366,21 +451,23 @@ class ServiceRunner:
                 self.log.debug("status publish failed: %s", exc)
 
     # helpers
-    def publisher(self, key: str, express: bool = True) -> zenoh.Publisher:
-        """Declare a publisher; ``express`` skips batching for lowest latency."""
-        pub = self.session.declare_publisher(key, express=express)
+    def publisher(self, key: str, express: bool = True) -> NumberedPublisher:
+        """Declare a numbered publisher; ``express`` skips batching for lowest latency."""
+        pub = NumberedPublisher(self.session, key, express=express)
         self._entities.append(pub)
         return pub
 
-    def publish(self, pub: zenoh.Publisher, msg: Any, stream: str) -> None:
+    def publish(self, pub: NumberedPublisher, msg: Any, stream: str) -> None:
         """Encode a message, put it, count it."""
         pub.put(msg.encode())
         self.status.published(stream)
 
     def _decoding(self, decode: Callable[[bytes], Any], stream: str, sink: Callable[[Any], None]):
         status = self.status
+        watch = gap_watch(status, stream)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            watch(sample)
             try:
                 msg = decode(sample.payload.to_bytes())
             except MessageError as exc:
@@ -403,15 +490,29 @@ class ServiceRunner:
         self._entities.append(sub)
         return sub
 
-    def subscribe_latest(self, key: str, decode: Callable[[bytes], Any], stream: str, depth: int = 1) -> LatestSlot:
+    def subscribe_latest(
+        self,
+        key: str,
+        decode: Callable[[bytes], Any],
+        stream: str,
+        depth: int = 1,
+        accept: Callable[[str], bool] | None = None,
+    ) -> LatestSlot:
         """Newest-wins mailbox (keeping ``depth`` messages) fed by a subscriber on ``key``.
 
-        Payloads are decoded by ``take()`` in the consumer's thread.
+        Payloads are decoded by ``take()`` in the consumer's thread, once, and only if
+        taken: the Zenoh thread only copies bytes, so it holds the GIL as briefly as possible.
+        ``accept(sample key)`` filters samples before they count as received (e.g. the
+        sim keeps only the followed solver's commands); lost samples count as gaps either way.
         """
         slot = LatestSlot(self.status, stream, decode, depth)
         status = self.status
+        watch = gap_watch(status, stream)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            watch(sample)
+            if accept is not None and not accept(str(sample.key_expr)):
+                return
             status.received(stream)
             slot.put(sample.payload.to_bytes())
 

@@ -1,4 +1,7 @@
-"""Frame ordering: the one guard for every consumer of a frame stream (ingest sanitizer, retarget).
+"""Sequence numbers: frame ordering (:class:`SequenceGuard`) and lost-message counting (:class:`GapCounter`).
+
+:class:`SequenceGuard` is the one order guard for every consumer of a frame stream (ingest
+sanitizer, retarget).
 
 The rule, per source:
 
@@ -24,10 +27,18 @@ The rule, per source:
 
 State is kept per source name (``check(hdr, source)``), so streams of several sources
 interleaved on one key are each judged against their own history.
+
+:class:`GapCounter` counts messages lost between a publisher and a subscriber from a
+per-publisher counter (the bus stamps one on every sample, see :mod:`shared.bus`). It is
+apart from the guard on purpose: the header ``seq`` of a derived message (targets,
+commands, states) skips legitimately wherever an upstream service rejected or superseded
+a frame, so gaps in it would count one drop again at every later hop.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 from shared.messages import Header
@@ -119,3 +130,38 @@ class SequenceGuard:
             self._streams.clear()
         else:
             self._streams.pop(source, None)
+
+
+class GapCounter:
+    """Messages missing between consecutive samples of each publisher (per-publisher counters).
+
+    A publisher numbers its samples 1, 2, 3, ...; :meth:`see` returns how many numbers were
+    skipped since that publisher's previous sample, i.e. samples lost on the way (in Zenoh under
+    congestion, in the kernel, in a router). A number not above the last one (a publisher that
+    restarted with the same id, a duplicate) starts that publisher's count afresh and is no gap.
+    Thread-safe: Zenoh may deliver on several threads.
+
+    Args:
+        max_sources: publishers remembered; the least recently seen is forgotten beyond this
+            (publishers that come and go must not grow the table forever).
+    """
+
+    def __init__(self, max_sources: int = 64):
+        self.max_sources = max(1, int(max_sources))
+        self.total = 0
+        self._last: OrderedDict[int, int] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def see(self, source: int, number: int) -> int:
+        """Record sample ``number`` of publisher ``source``; return the count of samples skipped before it."""
+        with self._lock:
+            last = self._last.get(source)
+            self._last[source] = number
+            self._last.move_to_end(source)
+            if len(self._last) > self.max_sources:
+                self._last.popitem(last=False)
+            if last is None or number <= last:
+                return 0
+            gap = number - last - 1
+            self.total += gap
+            return gap

@@ -10,7 +10,9 @@
 # verify its name. Private keys are written 0600 and must never be committed.
 # It also renders router.json5 and <service>.json5 (Zenoh configs with absolute
 # paths) next to the certificates; MIMIC_ROUTER_ENDPOINT overrides the
-# endpoint services connect to (default tls/<first ROUTER_HOST>:7447).
+# endpoint services connect to (default tls/<first ROUTER_HOST>:7447) and
+# MIMIC_CERTS_PATH the directory the configs name (default OUT_DIR itself; in
+# containers the folder OUT_DIR is mounted at, e.g. /certs).
 # Existing CA files are reused, so re-running adds missing service certs.
 set -euo pipefail
 
@@ -65,7 +67,7 @@ chmod 600 ./*.key
 chmod 644 ./*.pem
 
 # Render the Zenoh configs with absolute certificate paths.
-CERTS="$(pwd)"
+CERTS="${MIMIC_CERTS_PATH:-$(pwd)}"
 ROUTER_ENDPOINT="${MIMIC_ROUTER_ENDPOINT:-tls/${HOSTS[0]}:7447}"
 sed "s|@CERTS@|$CERTS|g" "$HERE/router.template.json5" > router.json5
 for s in "${SERVICES[@]}"; do

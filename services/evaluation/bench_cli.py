@@ -12,11 +12,13 @@ import importlib
 BENCHES = {
     "solvers": ("services.solver.bench", "per-tick time of every algorithm with PIQP and DAQP, beside mink"),
     "pipeline": ("services.evaluation.pipeline_bench", "the real stack on loopback at a fixed mocap rate"),
+    "handoff": ("services.evaluation.handoff_bench", "one bus hand-off per delivery mechanism (callback+slot, ring)"),
     "logger": ("services.logger.bench_cli", "logger throughput: bus messages per second its core takes"),
     "recorder": ("services.recorder.bench_cli", "recorder loss and memory: N messages at R Hz through a router"),
     "ingest": ("services.ingest.bench", "clips loaded, parse speed, the error a broken file gives"),
     "retarget": ("services.retarget.bench", "retargeting figures per mapping mode over the real clips"),
     "sim-track": ("services.sim.tracking_cli", "servo tracking of a sine in the MuJoCo sim"),
+    "posture": ("services.posture.bench", "numpy posture-policy inference per control tick, both arms"),
 }
 
 

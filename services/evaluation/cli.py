@@ -11,12 +11,15 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from services.evaluation.metrics import REACHABLE_TOL, reachable_mask, summarise, trace_metrics
-from services.evaluation.runner import EVAL_RETARGET, REFERENCE_ALGO, load_and_retarget, run_algorithm
+from services.evaluation.metrics import REACHABLE_TOL, compare, reachable_mask, summarise, trace_metrics
+from services.evaluation.mink_peer import MINK, MinkMissingError, require_mink
+from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
+from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_retarget, run_algorithm
 from services.ingest.errors import ClipError
-from services.retarget.mapping import ELBOW_PLACEMENTS, ORIENTATION_REFERENCES
-from services.solver.algorithms import ALGORITHMS
+from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
+from services.retarget.retargeter import RetargetConfig
 from services.solver.core import SolverConfig
+from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
 log = logging.getLogger("mimic.eval")
@@ -28,10 +31,22 @@ PAPER = {
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("clips", nargs="+", help="BVH or C3D clips")
-    p.add_argument("--algos", default="hqp-nullspace,hqp-original,wqp", help=f"comma list of {sorted(ALGORITHMS)}")
+    p.add_argument(
+        "--algos",
+        default="hqp-nullspace,hqp-original,wqp",
+        help=f"comma list of {[*sorted(ALGORITHMS), MINK]} (mink: the peer, mink.solve_ik on the same targets)",
+    )
+    p.add_argument(
+        "--skeleton-map", default=None, help="BVH skeleton map / C3D marker map file (TOML/JSON), as mimic publish"
+    )
     p.add_argument("--qp", default="daqp", choices=("piqp", "daqp"), help="QP backend")
     p.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
-    p.add_argument("--mapping", default="bounded", choices=("bounded", "paper", "incremental"))
+    p.add_argument(
+        "--mapping",
+        default=RetargetConfig().mode,
+        choices=MODES,
+        help=f"retarget position mapping (default: the service's, {RetargetConfig().mode})",
+    )
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
     p.add_argument(
@@ -44,21 +59,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--elbow-placement",
-        default=ELBOW_PLACEMENTS[0],
+        default=RetargetConfig().elbow_placement,
         choices=ELBOW_PLACEMENTS,
         help="swivel: elbow targets reachable with the wrist target; mapped: the paper's eqs. 1-3 per axis",
     )
     p.add_argument(
         "--velocity-tau",
         type=float,
-        default=EVAL_RETARGET["velocity_tau"],
-        help="retarget velocity low-pass time constant [s] (0 = raw finite differences)",
+        default=RetargetConfig().velocity_tau,
+        help="retarget velocity low-pass time constant [s] (default: the service's)",
+    )
+    p.add_argument(
+        "--no-ik-check",
+        action="store_true",
+        help="skip the IK reachability check of the published targets (no reachable_fraction, stuck_s)",
     )
     p.add_argument(
         "--orientation-reference",
-        default=ORIENTATION_REFERENCES[0],
+        default=None,
         choices=ORIENTATION_REFERENCES,
-        help="eq. 4 orientation mapping: forearm-relative (default), calibration posture, or the profile rest",
+        help="eq. 4 orientation mapping: forearm-relative (default; posture with --wrist-only), calibration "
+        "posture, or the profile rest",
     )
     p.add_argument(
         "--wqp-weights",
@@ -68,8 +89,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--paper",
         action="store_true",
-        help="the paper's setup: orientation level 1, mapped elbows, eq. 4 against the rest pose",
+        help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows, eq. 4 against "
+        "the rest pose",
     )
+    p.add_argument(
+        "--wrist-only",
+        action="store_true",
+        help="the solver sees the wrist targets only (a VR-controller source); runs, per clip, the full-mocap "
+        "reference (full:<algo>), wrist-only with the rest-posture level (wrist-only:<algo>) and, with "
+        "--posture-policy, wrist-only with the learned posture (wrist-only+policy:<algo>); elbow errors are "
+        "against the operator's retargeted elbows. Orientations default to --orientation-reference posture "
+        "(forearm reads the elbow)",
+    )
+    p.add_argument("--posture-policy", default=None, help="learned posture policy file (mimic posture train)")
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -78,67 +110,113 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
     algos, solver, wqp_weights, retarget = _settings(args)
     robot = build_robot_model(with_waist=not args.no_waist)
-    # The reachable-tick mask comes from the strict hierarchy, so run it first.
+    ik_check = not getattr(args, "no_ik_check", False)
+    sim = not args.no_sim
+    # The level-1 tick mask comes from the strict hierarchy, so run it first.
     order = [REFERENCE_ALGO] + [a for a in algos if a != REFERENCE_ALGO]
+    wrist_only, policy = getattr(args, "wrist_only", False), getattr(args, "posture_policy", None)
+    # (label, algo, wrist-only, solver settings) of every run on a clip
+    runs = [(a, a, False, solver) for a in order]
+    if wrist_only:
+        runs = [(f"full:{REFERENCE_ALGO}", REFERENCE_ALGO, False, solver)]
+        runs += [(f"wrist-only:{a}", a, True, solver) for a in algos]
+        if policy:
+            runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
-    bar = tqdm(total=len(args.clips) * len(order), desc="eval", unit="run", file=sys.stderr)
+    bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped = []
     for path in args.clips:
         try:
-            clip, targets = load_and_retarget(Path(path), robot, args.mapping, retarget)
+            clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
         except (ClipError, OSError, ValueError, RuntimeError) as exc:
             # One bad or unknown-rig clip must not cost the user the whole run: say it in one
             # line, record it, go on with the others.
             log.error("skipping %s: %s", path, exc)
             skipped.append({"clip": str(path), "error": str(exc)})
-            bar.update(len(order))
+            bar.update(len(runs))
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
+        report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
-        for algo in order:
-            bar.set_postfix_str(f"{clip.name[:28]} {algo}")
+        for label, algo, wo, extra in runs:
+            bar.set_postfix_str(f"{clip.name[:28]} {label}")
             tr = run_algorithm(
                 robot,
                 targets,
                 algo,
                 qp=args.qp,
                 rate=args.rate,
-                sim=not args.no_sim,
-                solver=solver,
+                sim=sim,
+                solver=extra,
                 wqp_weights=wqp_weights,
+                wrist_only=wo,
             )
-            if algo == REFERENCE_ALGO:
+            if algo == REFERENCE_ALGO and not wo:
                 mask = reachable_mask(tr)
-            if algo in algos:
-                entry["algos"][algo] = trace_metrics(tr, robot, mask)
-                traces[(clip.name, algo)] = tr
+            if algo in algos or wrist_only:
+                entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
+                traces[(clip.name, label)] = tr
             bar.update(1)
+        entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         clips_out.append(entry)
     bar.close()
     if not clips_out:
         raise SystemExit(f"mimic eval: no clip could be evaluated ({len(skipped)} skipped, see above)")
-    result = {"clips": clips_out, "skipped": skipped, "summary": summarise(clips_out), "paper": PAPER}
+    result = {
+        "clips": clips_out,
+        "skipped": skipped,
+        "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)},
+        "paper": PAPER,
+    }
     result["settings"] = _settings_json(args, algos, solver, wqp_weights, retarget, robot.nq)
+    result["settings"] |= {
+        "skeleton_map": getattr(args, "skeleton_map", None),
+        "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
+    }
     return result, traces
+
+
+def _compare_summary(clips: list[dict]) -> dict:
+    """Over clips: on how many the HQP's elbow mean is within 0.05 cm of (or below) each other algorithm's,
+    and its wrist mean below."""
+    out: dict = {}
+    for c in clips:
+        for algo, row in c.get("hqp_vs", {}).items():
+            o = out.setdefault(algo, {"clips": 0, "hqp_elbow_better": 0, "hqp_wrist_better": 0})
+            o["clips"] += 1
+            o["hqp_elbow_better"] += int(row["hqp_elbow_better"])
+            o["hqp_wrist_better"] += int(row["hqp_wrist_better"])
+    return out
 
 
 def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
     """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
-    ``--paper`` sets orientation level 1, mapped elbows and eq. 4 against the rest pose."""
+    ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows and eq. 4 against the rest
+    pose. The retargeter otherwise runs with the service's own settings (``RetargetConfig``)."""
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGORITHMS]
+    unknown = [a for a in algos if a not in ALGORITHMS and a != MINK]
     if unknown:
-        raise SystemExit(f"unknown algorithms {unknown}; known: {sorted(ALGORITHMS)}")
+        raise SystemExit(f"unknown algorithms {unknown}; known: {[*sorted(ALGORITHMS), MINK]}")
+    if MINK in algos:
+        try:
+            require_mink()
+        except MinkMissingError as exc:
+            raise SystemExit(str(exc)) from None
+    defaults = RetargetConfig()
     level = getattr(args, "wrist_orientation_level", None)
-    elbows = getattr(args, "elbow_placement", ELBOW_PLACEMENTS[0])
-    oref = getattr(args, "orientation_reference", ORIENTATION_REFERENCES[0])
+    elbows = getattr(args, "elbow_placement", defaults.elbow_placement)
+    mapping = getattr(args, "mapping", defaults.mode)
+    wrist_only = getattr(args, "wrist_only", False)
+    if getattr(args, "posture_policy", None) and not wrist_only:
+        raise SystemExit("--posture-policy is used with --wrist-only (with full targets the solver does not use it)")
+    oref = getattr(args, "orientation_reference", None) or ("posture" if wrist_only else defaults.orientation_reference)
     if getattr(args, "paper", False):
-        level, elbows, oref = 1, "mapped", "rest"
+        level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
-    retarget = {**EVAL_RETARGET, "elbow_placement": elbows, "orientation_reference": oref}
-    retarget["velocity_tau"] = getattr(args, "velocity_tau", EVAL_RETARGET["velocity_tau"])
+    retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref}
+    retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     return algos, solver, wqp_weights, retarget
 
 
@@ -155,7 +233,7 @@ def _settings_json(
         "algos": algos,
         "qp": args.qp,
         "rate_hz": args.rate,
-        "mapping": args.mapping,
+        "mapping": retarget["mode"],
         "retarget": retarget,
         "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
         "solver": {
@@ -165,6 +243,8 @@ def _settings_json(
             "damping": list(SolverConfig().damping),
         },
         "dof": dof,
+        "wrist_only": getattr(args, "wrist_only", False),
+        "posture_policy": getattr(args, "posture_policy", None),
         "sim": not args.no_sim,
         "reachable_tol": REACHABLE_TOL,
         "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "

@@ -4,20 +4,63 @@ from __future__ import annotations
 
 import numpy as np
 
+from services.evaluation.reachability import ReachabilityReport
 from services.evaluation.runner import Trace
 from shared.robot.pinocchio_model import RobotModel
 from shared.targets import ELBOWS, WRISTS
 
 #: Level-1 residual under which the strict hierarchy counts a wrist target as met.
 REACHABLE_TOL = 1e-3
+#: Wrist error [m] above which a tick on a reachable target counts towards ``stuck_s``.
+STUCK_ERR = 0.02
 
 
 def _stats(v: np.ndarray) -> dict:
     v = np.asarray(v, dtype=float)
     v = v[np.isfinite(v)]
     if not v.size:
-        return {"mean": None, "max": None}
-    return {"mean": float(v.mean()), "max": float(v.max())}
+        return {"mean": None, "p99": None, "max": None}
+    return {"mean": float(v.mean()), "p99": float(np.percentile(v, 99)), "max": float(v.max())}
+
+
+def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
+    """side -> (K,) bool: the wrist target the tick tracks (its frame's) passed the IK check."""
+    index = {int(s): k for k, s in enumerate(report.seq)}
+    rows = np.array([index.get(int(s), -1) for s in trace.seq])
+    out = {}
+    for side, ok in report.reachable().items():
+        out[side] = np.where(rows >= 0, ok[np.maximum(rows, 0)], False)
+    return out
+
+
+def longest_run(flags: np.ndarray) -> int:
+    """Length of the longest run of True in a (K,) bool array."""
+    best = run = 0
+    for f in np.asarray(flags, dtype=bool):
+        run = run + 1 if f else 0
+        best = max(best, run)
+    return best
+
+
+def stuck_seconds(trace: Trace, reachable: dict[str, np.ndarray], err: float = STUCK_ERR) -> float:
+    """Longest interval [s] with a wrist more than ``err`` [m] off a reachable (IK-checked) target."""
+    worst = 0
+    for w in WRISTS:
+        if w not in trace.kin_p:
+            continue
+        side = w.split("_")[0]
+        e = np.linalg.norm(trace.kin_p[w] - trace.ref_p[w], axis=1)
+        bad = (e > err) & trace.ref_ok[w] & reachable.get(side, np.ones(len(e), bool))
+        worst = max(worst, longest_run(bad))
+    return float(worst * trace.dt)
+
+
+def jerk_rms(trace: Trace) -> float | None:
+    """RMS over ticks and joints of the commanded joints' third derivative [rad/s^3]."""
+    if len(trace.q) < 4:
+        return None
+    j = np.diff(trace.q, n=3, axis=0) / trace.dt**3
+    return float(np.sqrt(np.mean(j * j)))
 
 
 def position_errors(ref: dict, got: dict, ok: dict, names, mask: np.ndarray | None = None) -> np.ndarray:
@@ -56,8 +99,21 @@ def reachable_mask(reference: Trace) -> np.ndarray:
     return np.nan_to_num(reference.res1, nan=np.inf) < REACHABLE_TOL
 
 
-def trace_metrics(trace: Trace, robot: RobotModel, reachable: np.ndarray | None = None) -> dict:
-    """The metrics dict ``M`` of the eval JSON for one algorithm on one clip (errors in cm)."""
+def trace_metrics(
+    trace: Trace,
+    robot: RobotModel,
+    reachable: np.ndarray | None = None,
+    report: ReachabilityReport | None = None,
+    sim: bool = False,
+) -> dict:
+    """The metrics dict ``M`` of the eval JSON for one algorithm on one clip (errors in cm).
+
+    Args:
+        reachable: (K,) bool, ticks where the strict hierarchy met level 1 (``level1_met_fraction``).
+        report: IK check of the published targets: ``reachable_fraction`` (wrists), ``pair_reachable_fraction``
+            (wrist with its elbow), ``stuck_s`` and the ``*_reachable`` blocks are measured against it.
+        sim: the trace has a simulated run (``self_collisions`` count its penetrating ticks).
+    """
     cm = 100.0
     m = {
         "wrist_err_cm": _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, WRISTS)),
@@ -74,15 +130,54 @@ def trace_metrics(trace: Trace, robot: RobotModel, reachable: np.ndarray | None 
         "ticks": len(trace.t),
         "status_counts": {s: int(c) for s, c in zip(*np.unique(trace.status, return_counts=True))},
     }
+    m["jerk_rms"] = jerk_rms(trace)
+    if trace.clearance is not None:
+        m["self_collisions"] = int(np.sum(trace.collide))
+        m["self_collision_source"] = "sim contacts" if sim else "kinematic clearance < 0"
+        c = trace.clearance[np.isfinite(trace.clearance)]
+        m["min_clearance_cm"] = float(cm * c.min()) if c.size else None
+    ticks = trace.counts.get("policy_ticks", 0)
+    if ticks:  # a posture policy ran: how often its gate sent an arm to the rest posture instead
+        m["policy_ticks"] = int(ticks)
+        m["gate_closed_fraction"] = trace.counts.get("gate_closed", 0) / (2.0 * ticks)
     if reachable is not None and len(reachable) == len(trace.t):
+        m["level1_met_fraction"] = float(reachable.mean())
         m["reachable_fraction"] = float(reachable.mean())
-        m["wrist_err_cm_reachable"] = _stats(
-            cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, WRISTS, reachable)
-        )
-        m["elbow_err_cm_reachable"] = _stats(
-            cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, ELBOWS, reachable)
-        )
+        mask = reachable
+    if report is not None:
+        per_side = tick_reachable(trace, report)
+        mask = per_side["left"] & per_side["right"]
+        m["reachable_fraction"] = report.fraction()
+        m["pair_reachable_fraction"] = report.fraction(pair=True)
+        m["speed_feasible_fraction"] = report.speed_feasible_fraction()
+        m["stuck_s"] = stuck_seconds(trace, per_side)
+    if reachable is not None or report is not None:
+        m["wrist_err_cm_reachable"] = _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, WRISTS, mask))
+        m["elbow_err_cm_reachable"] = _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, ELBOWS, mask))
     return m
+
+
+def compare(entry: dict, reference: str) -> dict:
+    """Per clip: ``reference`` (the HQP) beside every other algorithm, on the error means and p99s [cm, deg]."""
+    ref = entry["algos"].get(reference)
+    out: dict = {}
+    if ref is None:
+        return out
+    keys = ("wrist_err_cm", "elbow_err_cm", "wrist_rot_err_deg")
+    for algo, m in entry["algos"].items():
+        if algo == reference:
+            continue
+        row = {}
+        for k in keys:
+            for stat in ("mean", "p99"):
+                a, b = ref[k].get(stat), m[k].get(stat)
+                row[f"{k}_{stat}"] = {reference: a, algo: b}
+        e_ref, e_alg = ref["elbow_err_cm"]["mean"], m["elbow_err_cm"]["mean"]
+        row["hqp_elbow_better"] = bool(e_ref is not None and e_alg is not None and e_ref <= e_alg + 0.05)
+        w_ref, w_alg = ref["wrist_err_cm"]["mean"], m["wrist_err_cm"]["mean"]
+        row["hqp_wrist_better"] = bool(w_ref is not None and w_alg is not None and w_ref < w_alg)
+        out[algo] = row
+    return out
 
 
 def summarise(per_clip: list[dict]) -> dict:
@@ -97,14 +192,30 @@ def summarise(per_clip: list[dict]) -> dict:
             if isinstance(vals[0], dict) and "max" in vals[0]:
                 means = [(v["mean"], w) for v, (_, w) in zip(vals, ms) if v.get("mean") is not None]
                 maxes = [v["max"] for v in vals if v.get("max") is not None]
+                p99s = [v["p99"] for v in vals if v.get("p99") is not None]
                 s[key] = {
                     "mean": float(np.average([x for x, _ in means], weights=[w for _, w in means])) if means else None,
+                    # the worst clip's p99: the goals hold per clip
+                    "p99": float(max(p99s)) if p99s else None,
                     "max": float(max(maxes)) if maxes else None,
                 }
             elif key == "solve_ms":
                 s[key] = {k: float(np.mean([v[k] for v in vals])) for k in ("mean", "p50", "p99")}
-            elif isinstance(vals[0], int | float):
-                s[key] = float(np.sum(vals)) if key in ("limit_violations", "ticks") else float(np.mean(vals))
+            elif isinstance(vals[0], int | float) and not isinstance(vals[0], bool):
+                nums = [v for v in vals if isinstance(v, int | float)]
+                if key in ("limit_violations", "ticks", "self_collisions"):
+                    s[key] = float(np.sum(nums))
+                elif key in ("stuck_s",):
+                    s[key] = float(np.max(nums))
+                elif key == "min_clearance_cm":
+                    s[key] = float(np.min(nums))
+                elif key.endswith("reachable_fraction"):
+                    s[key] = float(np.min(nums))  # the worst clip: the goal holds per clip
+                    s[f"{key}_mean"] = float(np.average(nums, weights=[w for _, w in ms][: len(nums)]))
+                else:
+                    s[key] = float(np.mean(nums))
         s["limit_violations"] = int(s.get("limit_violations", 0))
+        if "self_collisions" in s:
+            s["self_collisions"] = int(s["self_collisions"])
         out[a] = s
     return out

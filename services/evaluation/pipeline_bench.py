@@ -6,12 +6,23 @@ commands ``mimic up`` takes from docker-compose.yml), publishes HumanFrames at
 the first arrival of each ``seq`` at every hop (targets, command, robot
 state) on one clock. Latency is ``arrival - hdr.t0``; a frame is dropped at a
 hop when its ``seq`` never shows up there.
+
+As issue 13 specifies the bench, the solver ticks on every target (``--trigger event``)
+and the sim publishes a state right after each applied command (``--state-on-command``:
+states at the input rate; the ``--state-rate`` ones only fill pauses), so the last hop's
+arrival is "command applied in the sim". ``hop_ms`` is each service's increment (its output's arrival minus its input's
+arrival; for retarget, minus ``t0``): one bus hop plus the service's hand-off and work.
+``drops`` says where frames were lost: each service's own mailbox drops (``dropped``)
+and the samples it never received (``gaps``: numbers skipped by its publishers, i.e.
+lost inside Zenoh), per input stream; ``drops_total`` sums them over the frame's path
+(frames, targets, commands: not the solver's newest-wins ``sim_state`` feedback).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import tempfile
 import threading
 import time
@@ -21,12 +32,17 @@ import numpy as np
 import zenoh
 
 from services.launcher.local_stack import LocalStack
-from shared.bus import free_port
+from shared.bus import NumberedPublisher, StatusCounters, free_port, gap_watch
 from shared.messages import ServiceStatus, peek_header
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.bench.pipeline")
 HOPS = ("retarget", "solver", "sim")
+#: Input streams on a frame's path (mocap -> targets -> command); ``sim_state`` into the solver is
+#: feedback, newest-wins by design, and its overwritten samples are not lost frames.
+PATH = ("frames", "targets", "commands")
+#: ServiceStatus period of the bench's services [s]: the last one must come after the last frame.
+STATUS_PERIOD_S = 0.25
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,8 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, help="write the result here as JSON (also printed)")
     p.add_argument("--port", type=int, default=0, help="router port (default: a free one)")
     p.add_argument("--algo", default="hqp-nullspace")
-    p.add_argument("--solver-args", default="", help="extra solver flags, e.g. '--qp daqp'")
-    p.add_argument("--sim-args", default="", help="extra sim flags")
+    p.add_argument(
+        "--solver-args", default="", help="extra solver flags, e.g. '--qp daqp' (after the bench's '--trigger event')"
+    )
+    p.add_argument("--sim-args", default="", help="extra sim flags (after the bench's '--state-on-command')")
     p.add_argument("--warmup", type=float, default=1.0, help="seconds of frames before measuring")
 
 
@@ -66,20 +84,27 @@ def _frames(n_frames: int, rate: float):
 def run(args: argparse.Namespace) -> dict:
     port = args.port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    extra = {"solver": args.solver_args.split(), "sim": args.sim_args.split()}
+    extra = {
+        "solver": ["--trigger", "event", *args.solver_args.split()],
+        "sim": ["--state-on-command", *args.sim_args.split()],
+    }
     n_total = int((args.duration + args.warmup) * args.rate)
     clip, idx = _frames(n_total, args.rate)
     arrivals = {h: _Arrivals() for h in HOPS}
     statuses: dict[str, ServiceStatus] = {}
-    with LocalStack(f"bench{port}", endpoint, env={"SOLVER": args.algo}) as stack:
+    observer = StatusCounters("bench", "observer", log)
+    with LocalStack(f"bench{port}", endpoint, env={"SOLVER": args.algo}, status_period=STATUS_PERIOD_S) as stack:
         stack.start_router()
         z, keys = stack.bus, stack.keys
 
         def hop(name: str):
             # Header only: full validation of every message at every hop would cost the
             # observer a good part of a core that the 2-core machine's services need.
+            watch = gap_watch(observer, name)
+
             def cb(sample: zenoh.Sample) -> None:
                 now = time.time_ns()
+                watch(sample)
                 hdr = peek_header(sample.payload.to_bytes())
                 if hdr is not None:
                     arrivals[name].add(hdr.seq, now)
@@ -97,7 +122,7 @@ def run(args: argparse.Namespace) -> dict:
         ]
         stack.start_all(HOPS, extra, timeout=90)
         time.sleep(0.5)
-        pub = z.declare_publisher(keys.mocap_frame, express=True)
+        pub = NumberedPublisher(z, keys.mocap_frame)
         t0_pub: dict[int, int] = {}
         period = 1.0 / args.rate
         start = time.monotonic()
@@ -118,7 +143,7 @@ def run(args: argparse.Namespace) -> dict:
             t0_pub[k] = frame.hdr.t0 = time.time_ns()
             pub.put(frame.encode())
         elapsed = time.monotonic() - start
-        time.sleep(1.5)
+        time.sleep(1.5 + 2 * STATUS_PERIOD_S)
         pub.undeclare()
         for s in subs:
             s.undeclare()
@@ -126,6 +151,7 @@ def run(args: argparse.Namespace) -> dict:
     first = int(args.warmup * args.rate)
     measured = range(first, n_total)
     result: dict = {
+        "load_avg_1m": os.getloadavg()[0],
         "rate_hz": args.rate,
         "achieved_rate_hz": n_total / elapsed,
         "publisher_late_frames": late,
@@ -160,10 +186,31 @@ def run(args: argparse.Namespace) -> dict:
             inc[h] = pct([(arrivals[h].first[s] - arrivals[prev].first[s]) / 1e6 for s in both])
         prev = h
     result["hop_increment_ms"] = inc
+    result["hop_ms"] = {h: {"p50": v["p50"], "p99": v["p99"]} for h, v in inc.items()}
+    result["drops"] = service_drops(statuses)
+    result["drops_total"] = path_drops(result["drops"])
+    result["observer_gaps"] = observer.count("gaps")
     result["service_status"] = {
         k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
     }
     return result
+
+
+def service_drops(statuses: dict[str, ServiceStatus]) -> dict[str, dict[str, dict[str, int]]]:
+    """Per service, per input stream: mailbox ``dropped`` and Zenoh-lost ``gaps`` (from the last statuses)."""
+    out: dict[str, dict[str, dict[str, int]]] = {}
+    for st in statuses.values():
+        name = st.service if st.instance == "main" else f"{st.service}/{st.instance}"
+        out[name] = {
+            kind: {k.split(".", 1)[1]: int(n) for k, n in st.counts.items() if k.startswith(kind + ".")}
+            for kind in ("dropped", "gaps")
+        }
+    return out
+
+
+def path_drops(drops: dict[str, dict[str, dict[str, int]]]) -> int:
+    """Frames lost on the frame's path (:data:`PATH` streams), mailbox drops and gaps, over all services."""
+    return sum(n for d in drops.values() for kind in ("dropped", "gaps") for s, n in d[kind].items() if s in PATH)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -26,22 +26,22 @@ from pathlib import Path
 
 import numpy as np
 
+from services.evaluation.mink_peer import MINK, MinkPeer
 from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
+from services.solver.targets import TargetTracker
 from services.solver.wqp import WeightedQp
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import quat_to_matrix
-from shared.targets import TARGET_NAMES, WRISTS
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
-#: Retarget settings of the evaluation beyond the service defaults (swivel elbows, forearm-relative
-#: orientations): raw finite-difference velocities, since the 50 ms low-pass lags the extrapolated
-#: reference between 30 fps frames (HQP wrist error 0.28 -> 0.17 cm mean on byebye_normal).
-EVAL_RETARGET: dict = {"velocity_tau": 0.0}
+#: Sim ticks between two clearance measurements (mj_geomDistance over every pair costs ~ms).
+CLEARANCE_EVERY = 10
 
 
 @dataclass
@@ -55,6 +55,9 @@ class Trace:
         ref_ok: target -> (K,) reference valid (not held).
         q, qd: (K, n) commanded joints [rad], [rad/s]. solve_ms: (K,). status: (K,) str.
         res1: (K,) level-1 residual.
+        collide: (K,) bool, an arm in penetration (sim contacts; kinematic clearance < 0 without sim,
+            on the clearance ticks only). clearance: (K,) smallest arm clearance [m] (NaN between
+            clearance ticks). dt: control period [s].
     """
 
     algo: str
@@ -72,6 +75,10 @@ class Trace:
     res1: np.ndarray
     sim_p: dict[str, np.ndarray] = field(default_factory=dict)
     sim_R: dict[str, np.ndarray] = field(default_factory=dict)
+    collide: np.ndarray | None = None
+    clearance: np.ndarray | None = None
+    dt: float = 0.002
+    counts: dict[str, int] = field(default_factory=dict)
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -94,6 +101,8 @@ def run_algorithm(
     settle: float = 0.5,
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
+    collisions: bool = True,
+    wrist_only: bool = False,
 ) -> Trace:
     """Solve a target stream at ``rate`` Hz; returns the per-tick trace.
 
@@ -104,18 +113,33 @@ def run_algorithm(
         solver: further :class:`SolverConfig` fields (e.g. ``wrist_orientation_level``).
         wqp_weights: level weights of ``wqp`` (default: :class:`WeightedQp`'s); e.g. ``(1, 0.01, 1)``
             for a "traditional QP" that all but ignores the elbows.
+        collisions: record self-collisions and clearances (:mod:`.collisions`).
+        wrist_only: the solver gets the wrist targets only (:func:`wrist_only_targets`); errors are
+            still measured against the full targets (the operator's retargeted elbows).
     """
-    core = _solver_core(robot, algo, qp, rate, solver, wqp_weights)
+    core = MinkPeer(robot, rate) if algo == MINK else _solver_core(robot, algo, qp, rate, solver, wqp_weights)
     simcore = _sim_core(robot) if sim else None
     dt = 1.0 / rate
-    rec = _Recorder(robot, core, simcore)
+    coll = None
+    if collisions:
+        from services.evaluation.collisions import SelfCollision
+
+        coll = SelfCollision(robot.profile, simcore.joint_names if simcore is not None else robot.joint_names)
+    # The reference the errors are measured against: the full targets, even when the solver sees less.
+    reference = TargetTracker(core.config.target_horizon, core.config.target_timeout)
+    fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
+    rec = _Recorder(robot, core, simcore, reference, coll)
     for t, msg in _arrivals(targets, settle, dt):
+        if msg is not None:
+            reference.update(msg, t)
+            if fed is not None:
+                msg = fed.get(id(msg)) or wrist_only_targets([msg])[0]
         cmd = core.step(msg, None, t)
         if simcore is not None:
             simcore.advance(cmd, dt)  # the sim maps commands by joint name
         if t >= settle:
             rec.tick(t, settle, dt, cmd)
-    return rec.trace(algo)
+    return rec.trace(algo, dt)
 
 
 def _solver_core(
@@ -166,9 +190,12 @@ def _arrivals(targets: list[TaskTargets], settle: float, dt: float) -> Iterator[
 class _Recorder:
     """Collects one scored tick at a time: references, kinematic and sim poses, commands."""
 
-    def __init__(self, robot: RobotModel, core: SolverCore, simcore=None) -> None:
-        self.robot, self.core, self.simcore = robot, core, simcore
-        self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1")}
+    def __init__(
+        self, robot: RobotModel, core, simcore=None, reference: TargetTracker | None = None, coll=None
+    ) -> None:
+        self.robot, self.core, self.simcore, self.coll = robot, core, simcore, coll
+        self.reference = core.tracker if reference is None else reference
+        self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1", "collide", "clear")}
         self.ref_p = {n: [] for n in TARGET_NAMES}
         self.ref_R = {n: [] for n in WRISTS}
         self.ref_ok = {n: [] for n in TARGET_NAMES}
@@ -184,7 +211,7 @@ class _Recorder:
             # The command of tick t is the pose for t + dt (the sim reaches it over the next tick,
             # the solver's feed-forward aims there): score it against the reference at t + dt as
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
-            s = self.core.tracker.sample(n, t + dt)
+            s = self.reference.sample(n, t + dt)
             self.ref_ok[n].append(s is not None and not s.held)
             self.ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
             self.kin_p[n].append(poses[n][0])
@@ -206,8 +233,16 @@ class _Recorder:
             ("res1", cmd.residuals[0] if cmd.residuals else np.nan),
         ):
             self.rec[key].append(value)
+        if self.coll is not None:
+            c = np.nan
+            if (len(self.rec["t"]) - 1) % CLEARANCE_EVERY == 0:
+                # the sim's reached joints when it runs (what a camera would see), else the command
+                c = self.coll.clearance(self.simcore.q if self.simcore is not None else cmd.q)
+            self.rec["clear"].append(c)
+            hit = self.coll.penetrating(self.simcore.robot.data) if self.simcore is not None else bool(c < 0)
+            self.rec["collide"].append(hit)
 
-    def trace(self, algo: str) -> Trace:
+    def trace(self, algo: str, dt: float) -> Trace:
         def arr(d):
             return {k: np.asarray(v) for k, v in d.items() if len(v)}
 
@@ -228,7 +263,21 @@ class _Recorder:
             res1=rec["res1"],
             sim_p=arr(self.sim_p),
             sim_R=arr(self.sim_R),
+            collide=rec["collide"].astype(bool) if self.coll is not None else None,
+            clearance=rec["clear"].astype(float) if self.coll is not None else None,
+            dt=dt,
+            counts=dict(self.core.counts),
         )
+
+
+def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:
+    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms."""
+    out = []
+    for tt in targets:
+        tg = {n: (replace(t, valid=False, v=np.zeros(3), w=np.zeros(3)) if n in ELBOWS else t)
+              for n, t in tt.targets.items()}  # fmt: skip
+        out.append(replace(tt, targets=tg, upper_arms={}))
+    return out
 
 
 def _at_rest(tt: TaskTargets) -> TaskTargets:
@@ -239,16 +288,27 @@ def _at_rest(tt: TaskTargets) -> TaskTargets:
 
 
 def load_and_retarget(
-    path: Path, robot: RobotModel, mode: str = "bounded", retarget: dict | None = None
+    path: Path,
+    robot: RobotModel,
+    mode: str | None = None,
+    retarget: dict | None = None,
+    skeleton_map: str | Path | None = None,
 ) -> tuple[Clip, list[TaskTargets]]:
     """Load a clip and retarget it with a freshly calibrated retargeter (as the live service does).
 
     Args:
-        retarget: further :class:`RetargetConfig` fields (default: :data:`EVAL_RETARGET`).
+        mode: mapping mode (None: the service default, ``RetargetConfig().mode``).
+        retarget: further :class:`RetargetConfig` fields (default: none, the service's own settings).
+        skeleton_map: BVH skeleton map / C3D marker map file, as ``mimic publish --skeleton-map``.
+
+    Raises:
+        ClipError (incl. SkeletonMapError): unreadable clip or a rig no map fits; one-line text.
     """
-    clip = load_clip(path)
-    fields = dict(EVAL_RETARGET if retarget is None else retarget)
-    cfg = RetargetConfig(mode=mode, robot=str(robot.profile.source), **fields)
+    clip = load_clip(path, skeleton_map=skeleton_map)
+    fields = dict(retarget or {})
+    if mode is not None:
+        fields["mode"] = mode
+    cfg = RetargetConfig(robot=str(robot.profile.source), **fields)
     retargeter = Retargeter(cfg, robot=_arms_model(robot))
     t0 = time.perf_counter()
     targets = clip_targets(clip, retargeter)

@@ -36,7 +36,7 @@ import zenoh
 
 from services.launcher.local_stack import LocalStack
 from services.launcher.supervisor import rss_mb
-from shared.bus import free_port
+from shared.bus import NumberedPublisher, free_port
 from shared.keys import Keys
 from shared.messages import SCHEMA_VERSION, HumanFrame, ServiceStatus, peek_header
 from shared.report import emit_json
@@ -105,7 +105,7 @@ class FramePublisher:
             d.update(clip.frame(i, seq=0).body())
             self.bodies.append(d)
         self.rate = rate
-        self.pub = z.declare_publisher(keys.mocap_frame, express=True)
+        self.pub = NumberedPublisher(z, keys.mocap_frame)
         self.sent = 0
         self.late = 0
         self.t0_ns: dict[int, int] = {}

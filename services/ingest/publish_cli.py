@@ -9,18 +9,25 @@ across loops), ``hdr.t0`` = ``time.time_ns()`` at publish.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import threading
 import time
 from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
+from services.ingest.demo_motion import DEMO_MOTIONS, generate_demo_clips
 from services.ingest.playback import Playback
 from shared.bus import ServiceRunner, add_bus_args
 from shared.report import emit_json
+from shared.wrist_only import wrists_only
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="clip to play (.bvh or .c3d)")
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("file", type=Path, nargs="?", help="clip to play (.bvh or .c3d)")
+    src.add_argument(
+        "--demo", choices=sorted(DEMO_MOTIONS), default=None, help="play a bundled demo motion instead of a file"
+    )
     parser.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1 = real time)")
     parser.add_argument("--loop", action="store_true", help="loop until stopped")
     parser.add_argument("--start", type=float, default=None, help="clip time to start at [s]")
@@ -31,12 +38,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--wait-subscriber", type=float, default=2.0, help="wait up to this long [s] for a subscriber before starting"
     )
+    parser.add_argument(
+        "--wrist-only",
+        action="store_true",
+        help="send the hand bones only, as a VR controller or hand tracker would (no shoulders, no elbows)",
+    )
     parser.add_argument("--instance", default="main", help="status instance name")
     add_bus_args(parser)
 
 
 def load_for_playback(args: argparse.Namespace):
     """Load and slice the clip named by ``args`` (raises ClipError)."""
+    if args.file is None:
+        # The demo motion is generated, not shipped: write it where nothing else lives.
+        args.file = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-demo-"))[list(DEMO_MOTIONS).index(args.demo)]
     opts = {"up": args.up}
     if Path(args.file).suffix.lower() == ".bvh":
         opts["units"] = args.units
@@ -96,7 +111,8 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
             if lag > 0.5 / (clip.fps * args.rate):
                 late += 1
             worst = max(worst, lag)
-            svc.publish(pub, player.step(time.time_ns()), stream="frames")
+            frame = player.step(time.time_ns())
+            svc.publish(pub, wrists_only(frame) if args.wrist_only else frame, stream="frames")
             n += 1
             svc.status.extra["late_frames"] = late
         wall = time.monotonic() - start
@@ -108,6 +124,7 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
         "wall_s": round(wall, 3),
         "fps": clip.fps,
         "rate": args.rate,
+        "wrist_only": bool(args.wrist_only),
     }
 
 

@@ -3,7 +3,12 @@
 The compose file is the single description of the services: ``mimic up`` runs
 exactly its commands and environment as local processes, so the containers
 and the embedded default cannot drift apart. The only local rewrite is the
-network: ``MIMIC_CONNECT`` and ``MIMIC_ROUTER_LISTEN`` point at loopback.
+network: ``MIMIC_CONNECT`` and ``MIMIC_ROUTER_LISTEN`` point at loopback, and
+``MIMIC_MODE`` is peer.
+
+Why the mode differs: each container has a loopback of its own, so the loopback
+listeners that let local peers reach each other directly are unreachable across
+containers; there the services are clients and the router carries everything.
 """
 
 from __future__ import annotations
@@ -21,7 +26,9 @@ from shared.paths import REPO_ROOT
 COMPOSE_FILE = REPO_ROOT / "docker-compose.yml"
 ROUTER_SERVICE = "zenoh"
 #: Environment variables that carry network endpoints: rewritten for loopback.
-NETWORK_ENV = ("MIMIC_CONNECT", "MIMIC_ROUTER_LISTEN")
+NETWORK_ENV = ("MIMIC_CONNECT", "MIMIC_ROUTER_LISTEN", "MIMIC_MODE")
+#: Zenoh mode of a local stack's services.
+LOCAL_MODE = "peer"
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::?-([^}]*))?\}")
 
 
@@ -113,6 +120,8 @@ def local_environment(spec: ServiceSpec, endpoint: str, session: str | None = No
         env["MIMIC_CONNECT"] = endpoint
     if "MIMIC_ROUTER_LISTEN" in env:
         env["MIMIC_ROUTER_LISTEN"] = endpoint
+    if "MIMIC_MODE" in env:
+        env["MIMIC_MODE"] = LOCAL_MODE
     if session is not None and "MIMIC_SESSION" in env:
         env["MIMIC_SESSION"] = session
     return env

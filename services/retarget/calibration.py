@@ -38,6 +38,10 @@ ARM_BONES = {side: (f"{side}_shoulder", f"{side}_elbow", f"{side}_wrist") for si
 #: Smallest distance between the rest value and each extent [m].
 MIN_SPAN = 0.02
 _MIRROR = np.array([1.0, -1.0, 1.0])
+#: Operator arm length, shoulder to wrist [m], assumed by :func:`from_wrists` (adult median ~0.55-0.6).
+DEFAULT_ARM_LENGTH = 0.55
+#: Share of the arm length that is the upper arm (adult anthropometry: ~0.30 of ~0.55 m).
+UPPER_ARM_SHARE = 0.55
 #: Default reach fractions of the arm length (negative side, positive side) per axis x, y, z.
 DEFAULT_REACH = ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0))
 
@@ -274,6 +278,66 @@ def anthropometric(
             upper[dst] = np.maximum(lower[src] * _MIRROR, upper[src] * _MIRROR)
         lengths[side] = lengths[other]
         source = f"anthropometric ({side} mirrored from {other}: {failures[side]})"
+    return Calibration(rest, rest_q, lower, upper, source=source, arm_length=lengths)
+
+
+def from_wrists(
+    frame: HumanFrame,
+    bone_of: Mapping[str, str] | None = None,
+    arm_length: float = DEFAULT_ARM_LENGTH,
+    reach: tuple[tuple[float, float], ...] = DEFAULT_REACH,
+) -> Calibration:
+    """Calibration from one rest frame of a wrist-only source (VR controllers: hands, no arm bones).
+
+    Without shoulders nothing measures the arm, so the operator's arm length is given
+    (``arm_length`` [m], default :data:`DEFAULT_ARM_LENGTH`) and the shoulder is taken straight
+    above the hanging wrist. The boxes are then those of :func:`anthropometric` around that
+    shoulder. Elbow entries are filled for completeness (rest straight below the shoulder at the
+    upper-arm share of the length); a wrist-only source never makes elbow targets valid.
+
+    Raises:
+        CalibrationError: no valid wrist, or a non-positive arm length.
+    """
+    bone_of = dict(bone_of or {t: t for t in TARGET_NAMES})
+    if not arm_length > 0.1:
+        raise CalibrationError(f"arm length {arm_length} m must be > 0.1 m")
+    reach_arr = np.asarray(reach, dtype=float)
+    rest, rest_q, lower, upper, lengths = {}, {}, {}, {}, {}
+    failures = {}
+    up = np.array([0.0, 0.0, 1.0])
+    for side in ("left", "right"):
+        try:
+            wrist = _bone_p(frame, bone_of[f"{side}_wrist"])
+            wrist_q = _bone_q(frame, bone_of[f"{side}_wrist"])
+        except CalibrationError as exc:
+            failures[side] = str(exc)
+            continue
+        shoulder = wrist + arm_length * up
+        elbow = shoulder - UPPER_ARM_SHARE * arm_length * up
+        lengths[side] = arm_length
+        for target, p, radius in (
+            (f"{side}_wrist", wrist, arm_length),
+            (f"{side}_elbow", elbow, UPPER_ARM_SHARE * arm_length),
+        ):
+            rest[target] = p
+            rest_q[target] = wrist_q
+            lower[target], upper[target] = _widen(
+                shoulder - radius * reach_arr[:, 0], p, shoulder + radius * reach_arr[:, 1]
+            )
+    if len(failures) == 2:
+        raise CalibrationError(f"no wrist to calibrate from: {'; '.join(failures.values())}")
+    source = f"wrists (arm length {arm_length:g} m assumed)"
+    for side in failures:
+        other = "right" if side == "left" else "left"
+        for joint in ("wrist", "elbow"):
+            src, dst = f"{other}_{joint}", f"{side}_{joint}"
+            rest[dst] = rest[src] * _MIRROR
+            w, x, y, z = rest_q[src]
+            rest_q[dst] = np.array([w, -x, y, -z])
+            lower[dst] = np.minimum(lower[src] * _MIRROR, upper[src] * _MIRROR)
+            upper[dst] = np.maximum(lower[src] * _MIRROR, upper[src] * _MIRROR)
+        lengths[side] = lengths[other]
+        source += f" ({side} mirrored from {other})"
     return Calibration(rest, rest_q, lower, upper, source=source, arm_length=lengths)
 
 

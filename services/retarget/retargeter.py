@@ -3,8 +3,10 @@
 Per frame and per target (both wrists and elbows):
 
 1. the source bone (robot profile ``[human]`` table) position goes through the
-   per-axis mapping of the configured mode (:mod:`.mapping`: eqs. 1-3 "paper",
-   "bounded" or "incremental") into the robot base frame;
+   mapping of the configured mode into the robot base frame: "reach" (default,
+   :mod:`.reach`: the wrist per direction from the shoulder onto the robot's sampled
+   reachable set) or the per-axis maps of :mod:`.mapping` (eqs. 1-3 "paper", "bounded",
+   or "incremental");
 2. its orientation goes through eq. (4) (:mod:`.orientation`); elbows carry it with
    ``use_rotation=False`` unless configured;
 3. linear and angular velocities are finite differences with the previous frame,
@@ -26,7 +28,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from services.retarget.calibration import Calibration, CalibrationError, anthropometric
+from services.retarget.calibration import (
+    DEFAULT_ARM_LENGTH,
+    Calibration,
+    CalibrationError,
+    anthropometric,
+    from_wrists,
+)
 from services.retarget.elbow import ArmGeometry, human_swivel
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from services.retarget.orientation import (
@@ -36,14 +44,18 @@ from services.retarget.orientation import (
     arm_alignment,
     calibration_orientations,
 )
+from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
+from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
 from shared.messages import Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
+from shared.robot.profile import upper_arm_frame as upper_arm_link
 from shared.rotations import matrix_to_quat, quat_to_matrix
 from shared.sequence import SequenceGuard
 from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
+from shared.wrist_only import is_wrist_only
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +72,11 @@ class RetargetConfig:
     """Retarget configuration (all fields settable from the CLI or a config file).
 
     Attributes:
-        mode: "bounded" (default), "paper" (eqs. 1-3 literally) or "incremental".
+        mode: "bounded" (default: eqs. 1-3 per axis, clamped to the box), "reach" (the wrist per
+            direction from the shoulder, the operator's reach ratio onto the robot's sampled reach in
+            that direction), "paper" (eqs. 1-3 literally) or "incremental".
+        reach_samples: Monte Carlo samples of the reach map ("reach" mode; more than the box needs,
+            since each direction of the sphere gets its own estimate).
         robot: robot profile name or path.
         samples, seed: Monte Carlo workspace sampling (paper: 12 000 samples).
         with_waist: sample the waist joints too (default: arms only, waist at rest).
@@ -95,11 +111,17 @@ class RetargetConfig:
             ``other_source`` and each new one is named once in the log.
         source_timeout: silence of the followed source [s] (frame ``t0`` clock) after which
             another source is followed (only without ``source``).
+        arm_length: operator arm length, shoulder to wrist [m], for sources without arm bones
+            (wrist-only: VR controllers); they calibrate with :func:`.calibration.from_wrists`.
+        upper_arms: publish ``TaskTargets.upper_arms`` (seed 004's operator upper-arm orientation
+            ``R_m`` in the robot frame) for every arm whose shoulder, elbow and wrist are valid
+            (needs ``elbow_placement="swivel"``).
     """
 
-    mode: str = "bounded"
+    mode: str = MODES[0]
     robot: str = DEFAULT_PROFILE
     samples: int = DEFAULT_SAMPLES
+    reach_samples: int = REACH_SAMPLES
     seed: int = 0
     with_waist: bool = False
     shrink: Shrink = field(default_factory=Shrink)
@@ -114,6 +136,8 @@ class RetargetConfig:
     orientation_reference: str = ORIENTATION_REFERENCES[0]
     source: str = ""
     source_timeout: float = 1.0
+    arm_length: float = DEFAULT_ARM_LENGTH
+    upper_arms: bool = True
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -169,10 +193,25 @@ class Retargeter:
         rest = self.robot.frame_poses(self.robot.q_rest, names=TARGET_NAMES)
         #: target -> (p (3,), R (3, 3)) robot rest pose in the base frame
         self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
-        #: side -> robot arm geometry for the swivel elbow placement
+        reach = self.config.mode == "reach"
+        #: side -> robot arm geometry for the swivel elbow placement and the reach map
         self.arms = (
-            {s: ArmGeometry.measure(self.robot, s) for s in SIDES} if self.config.elbow_placement == "swivel" else {}
+            {s: ArmGeometry.measure(self.robot, s) for s in SIDES}
+            if self.config.elbow_placement == "swivel" or reach
+            else {}
         )
+        #: side -> reachable radii per direction from the shoulder ("reach" mode)
+        self.reach: dict[str, ReachMap] = {}
+        if reach:
+            cloud = load_workspace(
+                prof, self.config.reach_samples, self.config.seed, self.config.with_waist, robot=self.robot
+            )
+            self.reach = {s: ReachMap.cached(cloud, s, self.arms[s].centre) for s in SIDES}
+        #: side -> the operator's upper arm as the robot's upper-arm link orientation (seed 004 eq. 6)
+        self.upper_arm_maps: dict[str, UpperArmSolver] = {}
+        if self.config.upper_arms and self.arms:
+            for side in self.arms:
+                self.upper_arm_maps[side] = UpperArmSolver(self.robot, side, upper_arm_link(prof, side))
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -197,6 +236,8 @@ class Retargeter:
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
         self._wfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        for ua in getattr(self, "upper_arm_maps", {}).values():
+            ua.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -217,14 +258,17 @@ class Retargeter:
                     ws.upper[t],
                 )
             else:
+                # "reach" keeps the bounded box map as its fallback for frames without the arm's shoulder
+                box_mode = "bounded" if self.config.mode == "reach" else self.config.mode
                 self._pos_map[t] = AbsoluteMap.build(
-                    self.config.mode, calibration.rest[t], calibration.lower[t], calibration.upper[t],
+                    box_mode, calibration.rest[t], calibration.lower[t], calibration.upper[t],
                     ws.lower[t], ws.upper[t],
                 )  # fmt: skip
         if self.config.orientation_reference == "rest":
             for t in TARGET_NAMES:
                 self._rot_map[t] = OrientationMap(quat_to_matrix(calibration.rest_q[t]), self.robot_rest[t][1])
         # "posture": built on the next frame, which gives the operator's shoulders (_posture_maps).
+        self._rest_reach: dict[str, np.ndarray] = {}
         self._reset_stream()
         log.info("calibration installed (%s), mode %s", calibration.source, self.config.mode)
 
@@ -238,7 +282,8 @@ class Retargeter:
         target in incremental mode); empty before any calibration."""
         if self.calibration is None:
             return {}
-        return {t: (m.U_s if isinstance(m, AbsoluteMap) else m.U).copy() for t, m in self._pos_map.items()}
+        out = {t: (m.U_s if isinstance(m, AbsoluteMap) else m.U).copy() for t, m in self._pos_map.items()}
+        return out | {t: p.copy() for t, p in self._rest_reach.items()}
 
     # ------------------------------------------------------------------ step
 
@@ -307,7 +352,10 @@ class Retargeter:
         self._guard.accept(hdr, frame.source)
         if self._recalibrate:
             try:
-                cal = anthropometric(frame, self.bone_of)
+                if is_wrist_only(frame):
+                    cal = from_wrists(frame, self.bone_of, self.config.arm_length)
+                else:
+                    cal = anthropometric(frame, self.bone_of)
                 self._calib_tries += 1
                 if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
                     raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
@@ -328,7 +376,13 @@ class Retargeter:
         self._placed.clear()
         for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
             targets[t] = self._target(t, frame, dt, targets)
-        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode)
+        upper_arms = {}
+        for side, ua_map in self.upper_arm_maps.items():
+            wrist = targets[f"{side}_wrist"]
+            placed = self._place_elbow(side, frame, wrist.p) if wrist.valid else None
+            if placed is not None:
+                upper_arms[side] = matrix_to_quat(ua_map(placed[0], wrist.p))
+        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode, upper_arms=upper_arms)
 
     def _posture_maps(self, frame: HumanFrame) -> None:
         """Eq. (4) offsets against the robot's calibration posture (``orientation_reference="posture"``).
@@ -338,11 +392,16 @@ class Retargeter:
         this frame, their elbow and wrist from the calibration).
         """
         cal = self.calibration
+        for side, rmap in self.reach.items():
+            sh = frame.bones.get(f"{side}_shoulder")
+            if sh is not None and sh.valid:
+                u, rho = operator_reach(sh.p, cal.rest[f"{side}_elbow"], cal.rest[f"{side}_wrist"])
+                self._rest_reach[f"{side}_wrist"] = self.arms[side].reachable(rmap.map(u, rho))
         rest = self.rest_targets()
         elbows = {}
         for side, arm in self.arms.items():
             sh = frame.bones.get(f"{side}_shoulder")
-            if sh is not None and sh.valid:
+            if sh is not None and sh.valid and self.config.elbow_placement == "swivel":
                 shoulder = np.asarray(sh.p, dtype=float)
                 swivel = human_swivel(shoulder, cal.rest[elbow_of(side)], cal.rest[wrist_of(side)])
                 elbows[side] = arm.place(rest[wrist_of(side)], swivel)
@@ -370,7 +429,7 @@ class Retargeter:
         if placed is not None:
             return placed
         arm = self.arms.get(side)
-        if arm is None or self.config.mode == "incremental":
+        if arm is None or self.config.mode == "incremental" or self.config.elbow_placement != "swivel":
             return None
         bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
         if any(b is None or not b.valid for b in bones):
@@ -383,7 +442,7 @@ class Retargeter:
     def _elbow_in_box(self, t: str, p: np.ndarray) -> np.ndarray:
         """A swivel elbow target (3,) [m] as published: kept in the workspace box in bounded mode."""
         if self.config.mode != "bounded":
-            return p
+            return p  # "reach": the box is not the reachable set; the swivel pair is
         # Still kept in the box (one elbow in five on the real clips, up to 1.7 cm off the
         # forearm length): without it `mimic eval` tracked slightly worse (elbow 0.94 -> 0.96 cm,
         # wrist 0.068 -> 0.078 cm mean, hqp-nullspace on the 16 clips); the box's outer 5 %
@@ -392,6 +451,26 @@ class Retargeter:
         q = np.clip(p, ws.lower[t], ws.upper[t])
         if np.any(np.abs(q - p) > 1e-9):
             self.counts[f"clamped_{t}"] += 1
+        return q
+
+    def _reach_target(self, t: str, side: str, frame: HumanFrame) -> np.ndarray | None:
+        """ "reach" mode position (3,) [m] of a wrist (or, with mapped elbows, an elbow): the operator's
+        direction from their shoulder and reach ratio onto the robot's reach map; None without the
+        arm's bones (the caller falls back to the box map)."""
+        bones = [frame.bones.get(f"{side}_{b}") for b in ("shoulder", "elbow", "wrist")]
+        if any(b is None or not b.valid for b in bones):
+            return None
+        h_sh, h_el, h_wr = (np.asarray(b.p, dtype=float) for b in bones)
+        arm = self.arms[side]
+        if t.endswith("elbow"):  # mapped elbows: the operator's upper-arm direction at the robot's length
+            d = h_el - h_sh
+            n = float(np.linalg.norm(d))
+            return arm.centre + arm.upper * (d / n if n > 1e-9 else arm.default_swivel)
+        u, rho = operator_reach(h_sh, h_el, h_wr)
+        p = self.reach[side].map(u, rho)
+        q = arm.reachable(p)
+        if np.any(np.abs(q - p) > 1e-9):
+            self.counts[f"reach_clamped_{t}"] += 1
         return q
 
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
@@ -414,10 +493,14 @@ class Retargeter:
             placed = self._place_elbow(side, frame, wrist.p) if wrist is not None and wrist.valid else None
             if placed is not None:
                 p = self._elbow_in_box(t, placed[0])
+        if p is None and side in self.reach:
+            p = self._reach_target(t, side, frame)
         if p is None:
             p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
             if clamped.any():
                 self.counts[f"clamped_{t}"] += 1
+            if side in self.reach and t.endswith("wrist"):
+                p = self.reach[side].project(p)
             arm = self.arms.get(side)
             if t in WRISTS and arm is not None and self.config.mode != "incremental":
                 # Swivel elbows: keep the wrist within the arm's reach so the pair stays reachable.

@@ -7,8 +7,6 @@ import logging
 import os
 from pathlib import Path
 
-# MuJoCo reads MUJOCO_GL when first imported; EGL renders without a display.
-os.environ.setdefault("MUJOCO_GL", "egl")
 # Software GL (llvmpipe) would otherwise take every core away from the physics loop.
 os.environ.setdefault("LP_NUM_THREADS", "1")
 
@@ -69,6 +67,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="joint positions kept for a restart: loaded at start when present, rewritten while running "
         "('auto': runs/<session>_sim_state.json; 'none': off)",
     )
+    g.add_argument(
+        "--state-on-command",
+        action="store_true",
+        help="realtime: also publish RobotState right after each applied command (latency benches)",
+    )
     g.add_argument("--render", default=None, metavar="DIR", help="render offscreen to DIR (sim.mp4 or PNG frames)")
     g.add_argument("--render-fps", type=float, default=10.0, help="rendered frames per simulated second")
     g.add_argument("--render-format", choices=("auto", "mp4", "png"), default="auto", help="mp4 needs ffmpeg")
@@ -76,21 +79,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    # MuJoCo picks its GL backend from MUJOCO_GL when first imported (below). EGL renders without a
+    # display; without --render no GL at all, so no OpenGL library is loaded (or missed) in vain.
+    os.environ.setdefault("MUJOCO_GL", "egl" if args.render else "disable")
     from services.sim.node import run
     from services.sim.resume import load_state, session_state_file
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         Keys().command(args.solver_id)
         if args.state_rate <= 0 or args.lockstep_dt <= 0:
             raise ValueError("--state-rate and --lockstep-dt must be positive")
         config = sim_config(args)
-        core = SimCore(args.robot, config)
+        if is_wheeled_profile(args.robot):
+            # A wheeled-legged arm robot (seed 002): its balancing core follows 7-D commands.
+            from services.wbc.sim_core import WheeledSimConfig, WheeledSimCore
+
+            core = WheeledSimCore(
+                args.robot,
+                WheeledSimConfig(config.timestep, config.watchdog, config.max_extrapolation, config.solver_id),
+            )
+        else:
+            core = SimCore(args.robot, config)
         if args.state_file == "auto":
             args.state_file = session_state_file(args.session)
-        if args.state_file != "none":
+        if args.state_file != "none" and hasattr(core, "resume"):
             q = load_state(Path(args.state_file), list(core.joint_names))
             if q is not None:
                 core.resume(q)

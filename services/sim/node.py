@@ -1,10 +1,14 @@
 """Bus wiring of the sim service: JointCommands in, RobotState out.
 
-* Subscribes ``keys.all_commands`` and keeps the commands whose ``solver_id`` is the
-  one followed (others are ignored, counted in ``extra.ignored``). Real time keeps only
-  the newest command (overwritten ones count as dropped); lock-step queues every one.
+* Subscribes ``keys.all_commands`` and keeps the commands published on the followed
+  solver's key (others are ignored, counted in ``extra.ignored``, and never decoded).
+  Real time keeps only the newest command (overwritten ones count as dropped) and
+  applies it as soon as it arrives (the loop waits on the mailbox, not in a sleep);
+  lock-step queues up to :data:`LOCKSTEP_QUEUE` (beyond: the oldest dropped, counted).
 * Publishes :class:`RobotState` on ``keys.sim_state``: at ``--state-rate`` of
-  simulated time in real time, after every command in lock-step.
+  simulated time in real time, and with ``--state-on-command`` also right after each
+  applied command (its header, so latency "frame -> command applied" is observable);
+  after every command in lock-step.
 * Serves ``keys.sim_follow``: without payload it returns ``{"follow": id}`` (msgpack);
   a payload (msgpack string, msgpack/JSON map ``{"follow": id}`` or plain UTF-8 text)
   switches to that solver id and returns the new value.
@@ -12,7 +16,6 @@
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
 from pathlib import Path
@@ -22,7 +25,7 @@ import msgpack
 from services.sim.render import BackgroundFrameWriter, FrameWriter, open_renderer
 from services.sim.resume import save_state
 from services.sim.sim_core import SimCore
-from shared.bus import LatestSlot, ServiceRunner
+from shared.bus import ServiceRunner
 from shared.keys import Keys
 from shared.messages import JointCommand, MessageError, parse_query
 
@@ -32,6 +35,8 @@ MAX_CATCHUP = 0.05
 STATE_SAVE_PERIOD = 0.25
 #: Shortest interval between two "velocity past its limit" warnings [s].
 VELOCITY_LOG_PERIOD = 5.0
+#: Commands queued for the lock-step clock before the oldest is dropped.
+LOCKSTEP_QUEUE = 10000
 
 
 def parse_follow(payload: bytes) -> str:
@@ -62,6 +67,7 @@ class SimNode:
         lockstep_dt: simulated time per command in lock-step [s].
         state_rate: RobotState rate in real time [Hz of simulated time].
         renderer: optional frame writer.
+        state_on_command: real time: also publish a RobotState right after each applied command.
     """
 
     def __init__(
@@ -72,6 +78,7 @@ class SimNode:
         lockstep_dt: float = 0.01,
         state_rate: float = 200.0,
         renderer: FrameWriter | BackgroundFrameWriter | None = None,
+        state_on_command: bool = False,
     ):
         self.core = core
         self.svc = svc
@@ -79,8 +86,10 @@ class SimNode:
         self.lockstep_dt = lockstep_dt
         self.state_period = 1.0 / state_rate
         self.renderer = renderer
+        self.state_on_command = state_on_command
         self._follow_lock = threading.Lock()
         self.follow = core.solver_id
+        self._follow_key = svc.keys.command(self.follow)
         self.ignored = 0
         self.overruns = 0
         self.state_file: Path | None = None  # where keep_state writes (None: off)
@@ -88,26 +97,24 @@ class SimNode:
         self._velocity_excess_said = 0  # velocity_excess_steps at the last warning
         self._velocity_said_at = -float("inf")  # monotonic time of that warning [s]
         self._rejects_seen: dict[str, int] = {}
-        self._slot = LatestSlot(svc.status, "commands")
-        self._queue: queue.Queue[JointCommand] = queue.Queue(maxsize=10000)
         self._pub = svc.publisher(svc.keys.sim_state)
-        svc.subscribe(svc.keys.all_commands, self.on_command, JointCommand.decode, stream="commands")
+        self.commands = svc.subscribe_latest(
+            svc.keys.all_commands,
+            JointCommand.decode,
+            stream="commands",
+            depth=LOCKSTEP_QUEUE if lockstep else 1,
+            accept=self._followed,
+        )
         svc.queryable(svc.keys.sim_follow, self.on_follow)
 
     # ------------------------------------------------------------------ callbacks (zenoh threads)
 
-    def on_command(self, cmd: JointCommand) -> None:
-        """Keep commands of the followed solver; never blocks the zenoh thread."""
-        if cmd.solver_id != self.follow:
-            self.ignored += 1
-            return
-        if not self.lockstep:
-            self._slot.put(cmd)
-            return
-        try:
-            self._queue.put_nowait(cmd)
-        except queue.Full:
-            self.svc.status.dropped("commands")
+    def _followed(self, key: str) -> bool:
+        """Sample filter: only the followed solver's key (no decoding in the Zenoh thread)."""
+        if key == self._follow_key:
+            return True
+        self.ignored += 1
+        return False
 
     def on_follow(self, payload: bytes | None) -> bytes:
         """Queryable handler: GET the followed solver id; a payload sets it."""
@@ -117,23 +124,27 @@ class SimNode:
                 if new != self.follow:
                     self.svc.log.info("following solver %r (was %r)", new, self.follow)
                 self.follow = new
+                self._follow_key = self.svc.keys.command(new)
         return msgpack.packb({"follow": self.follow})
 
     # ------------------------------------------------------------------ main loop
 
-    def _apply(self, cmd: JointCommand | None) -> None:
+    def _apply(self, cmd: JointCommand | None) -> bool:
+        """Apply a command of the followed solver; True if the sim took it."""
         if cmd is None:
-            return
-        if cmd.solver_id != self.follow:  # queued before a follow switch
+            return False
+        if cmd.solver_id != self.follow:  # queued before a follow switch, or a key/id mismatch
             self.ignored += 1
-            return
+            return False
         self.core.solver_id = self.follow
-        if not self.core.apply(cmd):
-            c = self.core.counters
-            for reason, n in c.rejects.items():
-                if n > self._rejects_seen.get(reason, 0):
-                    self.svc.status.reject(reason, c.last_reject)
-                    self._rejects_seen[reason] = n
+        if self.core.apply(cmd):
+            return True
+        c = self.core.counters
+        for reason, n in c.rejects.items():
+            if n > self._rejects_seen.get(reason, 0):
+                self.svc.status.reject(reason, c.last_reject)
+                self._rejects_seen[reason] = n
+        return False
 
     def _publish(self) -> None:
         self.core.solver_id = self.follow
@@ -168,11 +179,14 @@ class SimNode:
                 "overruns": float(self.overruns),
                 "sim_time": self.core.time,
                 "max_contacts": float(self.core.max_contacts),
-                "velocity_excess_steps": float(c.velocity_excess_steps),
-                "worst_velocity_ratio": c.worst_velocity_ratio,
             }
         )
-        if c.velocity_excess_steps > self._velocity_excess_said:
+        excess = getattr(c, "velocity_excess_steps", None)  # the wheeled core (seed 002) does not count it
+        if excess is None:
+            return
+        st.extra["velocity_excess_steps"] = float(excess)
+        st.extra["worst_velocity_ratio"] = c.worst_velocity_ratio
+        if excess > self._velocity_excess_said:
             # The robot, not a command, went past a limit: say it (status + log), at most every 5 s.
             now = time.monotonic()
             if now - self._velocity_said_at >= VELOCITY_LOG_PERIOD:
@@ -194,7 +208,6 @@ class SimNode:
         next_pub = core.time
         next_status = wall0
         while not stop.is_set():
-            self._apply(self._slot.take())
             behind = (time.monotonic() - wall0) - (core.time - sim0)
             if behind > MAX_CATCHUP:
                 # Too far behind (slow machine, rendering): drop the backlog rather than spiral.
@@ -217,16 +230,18 @@ class SimNode:
                 self.keep_state(now)
             if duration is not None and core.time - sim0 >= duration:
                 break
+            # Wait for the next physics step on the command mailbox, not in a sleep: a command is
+            # applied (and, with state_on_command, its state published) as soon as it arrives.
             sleep = dt - ((now - wall0) - (core.time - sim0))
-            if sleep > 0:
-                time.sleep(sleep)
+            if self._apply(self.commands.take(timeout=sleep if sleep > 0 else None)) and self.state_on_command:
+                self._publish()
+                next_pub = core.time + self.state_period
 
     def run_lockstep(self, stop: threading.Event) -> None:
         """Advance ``lockstep_dt`` per command, as fast as commands come, until ``stop``."""
         while not stop.is_set():
-            try:
-                cmd = self._queue.get(timeout=0.1)
-            except queue.Empty:
+            cmd = self.commands.take(timeout=0.1)
+            if cmd is None:
                 self.update_status()
                 continue
             self._apply(cmd)
@@ -256,6 +271,7 @@ def run(args, core: SimCore) -> int:
                 lockstep_dt=args.lockstep_dt,
                 state_rate=args.state_rate,
                 renderer=renderer,
+                state_on_command=args.state_on_command,
             )
             svc.log.info(
                 "sim %s clock, following %s on %s, state on %s, servo %s",

@@ -267,7 +267,8 @@ class SimCore:
         self._ref_t = now
         self._last_cmd_time = now
         if self.holding:
-            log.debug("commands resumed at t=%.3f s (seq %d)", now, cmd.hdr.seq)
+            # Info: a hold and its end are events an operator wants in the log (a few per run).
+            log.info("commands resumed at t=%.3f s (seq %d)", now, cmd.hdr.seq)
         self.holding = False
         self.hdr = cmd.hdr
         self.counters.applied += 1
@@ -284,7 +285,7 @@ class SimCore:
             self.holding = True
             self._hold_q = self.q_servo.copy()
             self.counters.holds += 1
-            log.debug("watchdog: no command for %.0f ms, holding", 1e3 * (t - self._last_cmd_time))
+            log.info("watchdog: no command for %.0f ms, holding (t=%.3f s)", 1e3 * (t - self._last_cmd_time), t)
         if self.holding:
             ref, vel = self._hold_q, None
         else:

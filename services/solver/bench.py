@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from services.solver.algorithms import ALGORITHMS, USES_QP
 from services.solver.core import SolverConfig, SolverCore
+from services.solver.registry import ALGORITHMS, USES_QP
 from shared.messages import Header, Target, TaskTargets
 from shared.report import emit_json
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
@@ -151,7 +151,8 @@ def time_solver(robot: RobotModel, algo: str, qp: str, frames: list[TaskTargets]
         cmd = core.step(msg, None, t)
         ms[k] = (time.perf_counter() - t0) * 1e3
         cpu[k] = (time.thread_time_ns() - c0) * 1e-6
-        statuses[cmd.status] = statuses.get(cmd.status, 0) + 1
+        if k >= warmup:
+            statuses[cmd.status] = statuses.get(cmd.status, 0) + 1
     ms = ms[warmup:]
     return {
         "algo": algo,
@@ -262,7 +263,9 @@ def run_bench(
         "paper_ms": PAPER_MS,
     }
     big = max(robots)
-    ours = next(r for r in results if r["algo"] == "hqp-nullspace" and r["dof"] == big and r["qp"] == qps[-1])
+    # The shipped configuration's backend when it was run.
+    shipped = SolverConfig().qp if SolverConfig().qp in qps else qps[-1]
+    ours = next(r for r in results if r["algo"] == "hqp-nullspace" and r["dof"] == big and r["qp"] == shipped)
     report["goal"] = {
         "algo": "hqp-nullspace",
         "dof": big,

@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-from services.solver.algorithms import ALGORITHMS
 from services.solver.core import SolverConfig
 from services.solver.qp import QP_BACKENDS
+from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
 from shared.config import add_dataclass_arguments
 from shared.robot.profile import DEFAULT_PROFILE
@@ -25,6 +25,7 @@ FLAGS = {
     "solver_id": {"flag": "--id", "help": "solver id: commands go to mimic/<session>/solver/<id>/command"},
     "wrist_orientation_cost": {"flag": "--orientation-weight"},
     "wrist_orientation_level": {"choices": (1, 2, 3)},
+    "posture_policy": {"metavar": "FILE"},
 }
 
 
@@ -34,11 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_dataclass_arguments(g, SolverConfig, FLAGS, skip=("damping",))
     parser.add_argument("--no-waist", action="store_true", help="control the 14 arm joints only")
     parser.add_argument("--robot", default=None, help=f"robot profile name or TOML path (default {DEFAULT_PROFILE})")
-    parser.add_argument(
-        "--closed-loop",
-        action="store_true",
-        help="re-anchor on the measured joints when they drift more than the resync threshold from the command",
-    )
     parser.add_argument(
         "--trigger",
         choices=("rate", "event"),
@@ -55,10 +51,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     """Run the solver service."""
     from services.solver.node import config_from_args, run
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         config_from_args(args)
     except ValueError as exc:
         log.error("%s", exc)
         return 2
+    if args.robot and is_wheeled_profile(args.robot):
+        # A wheeled-legged arm robot (seed 002): its own planner, wbqp-accel, whatever --algo says.
+        from services.solver.wbqp_node import run as run_wheeled
+
+        return run_wheeled(args)
     return run(args)

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.solver.algorithm import Algorithm, Solution, count_active, level_residuals
+from services.solver.base import Algorithm, Solution, count_active, level_residuals
 from services.solver.linalg import split_row_space
 
 

@@ -4,40 +4,50 @@ One :meth:`SolverCore.step` per control tick: take the newest targets and
 measured joints (either may be None), sample the targets at the tick time,
 build the three priority levels (wrists, elbows, posture), solve joint
 velocities with the chosen algorithm, integrate, smooth and return the
-:class:`~shared.messages.JointCommand`. Every command respects the position
-and velocity limits: a failed solve holds the previous safe position, and a
-final clamp (counted) is the last safety net.
+:class:`~shared.messages.JointCommand`.
+
+Every step covers the real time elapsed since the previous one (clamped to
+``[MIN_STEP, MAX_STEP_TICKS / rate]``), whether the caller ticks at the rate,
+on every target arrival (``--trigger event``) or late after a stall: the bounds
+and the integration use that time, so the command never moves faster than the
+limits allow over wall-clock time. Every command respects the position,
+velocity and acceleration limits (``bounds.JointBounds`` at every level of every
+algorithm, and the smoother's own limiter): a failed solve brakes as hard as the
+limits allow, and a final clamp (counted) is the last safety net.
 
 The command integrates its own state; the measured joints initialise it (so a
-solver started mid-stream continues from where the robot is, without a jump)
-and re-anchor it when command and robot drift apart by more than
-``resync_threshold`` (the robot was blocked, or the sim restarted).
+solver started mid-stream continues from where the robot is, without a jump),
+bound it to ``max_command_lead`` around them, and with ``closed_loop``
+re-anchor it when command and robot drift apart by more than
+``resync_threshold`` (the sim restarted).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from services.solver.algorithms import make_algorithm
-from services.solver.quintic import QuinticSmoother
+from services.solver.base import Solution
+from services.solver.bounds import JointBounds
+from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
+from services.solver.registry import make_algorithm
 from services.solver.targets import TargetTracker
-from shared.kinematics import (
-    Configuration,
-    ConfigurationLimit,
-    FrameTask,
-    PositionTask,
-    PostureTask,
-    VelocityLimit,
-)
+from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
-from shared.targets import ELBOWS, WRISTS
+from shared.robot.profile import upper_arm_frame
+from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
+#: Shortest step [s] a tick accounts for (ticks closer than this still move by it: 1e-4 s at vmax = 4e-4 rad).
+MIN_STEP = 1e-4
+#: Longest step, in nominal ticks: after a stall the next tick moves as if at most this much time passed.
+MAX_STEP_TICKS = 2.0
 
 
 @dataclass
@@ -46,7 +56,8 @@ class SolverConfig:
 
     Attributes:
         algo: algorithm name (``hqp-nullspace``, ``hqp-original``, ``wqp``, ``clik-nullspace``, ``dls``).
-        qp: QP backend (``piqp`` or ``daqp``).
+        qp: QP backend (``daqp`` or ``piqp``). DAQP: its active set is exact (PIQP's interior point needs
+            the active-set refinement) and it is the faster one here; ``mimic eval`` measures it too.
         rate: control rate [Hz]; dt = 1 / rate.
         solver_id: id published in every command.
         wrist_position_cost: weight of wrist position rows [1/m].
@@ -69,8 +80,24 @@ class SolverConfig:
             reachable targets (tests/evaluation); 1e-5 brings that to 0.03 mm and 0.14 deg.
         smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
-        resync_threshold: re-anchor on the measured joints beyond this drift [rad].
+        resync_threshold: with ``closed_loop``, re-anchor on the measured joints beyond this drift [rad].
+        task_acceleration: acceleration [m/s^2] the wrist (level-1) errors are closed with at
+            most: their gain is capped so the demanded speed can still be braked to zero at the error
+            (see ``SolverCore._shape_gains``; the joints' own acceleration limit is the hard one).
+        closed_loop: re-anchor (reset) on the measured joints when they drift beyond ``resync_threshold``.
+        max_command_lead: the command is kept within this distance [rad] of the measured joints (a
+            braking window around them, see ``bounds``), so a blocked arm is not commanded far from
+            where it is; None = off. Below ``resync_threshold``: the window handles a blocked arm,
+            the resync a robot that jumped (a sim restart).
+        measured_timeout: measured joints older than this [s] no longer bound the command.
         infeasible_tol: level-1 residual above which the status is ``infeasible``.
+        posture_policy: learned posture policy file (``mimic posture train``). An arm whose elbow target
+            is invalid (a wrist-only source) then gets the policy's ``q̇₀`` on a level of its own below
+            the wrist tasks (gated: where the policy's virtual target disagrees with the real one,
+            the rest posture instead). With valid elbows it is unused.
+        wrist_only_posture_gain: gain [1/s] of the rest-posture task that takes that level for a
+            wrist-only arm without a policy (or with a closed gate).
+        mimicry_eta: η [1/s] of ``clik-mimicry`` (seed 004 eq. 3).
         wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
             2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
             posture. 3: wrist positions > elbows > wrist orientations (+ posture). 1: the paper's
@@ -83,7 +110,7 @@ class SolverConfig:
     """
 
     algo: str = "hqp-nullspace"
-    qp: str = "piqp"
+    qp: str = "daqp"
     rate: float = 500.0
     solver_id: str = "main"
     wrist_position_cost: float = 1.0
@@ -99,12 +126,19 @@ class SolverConfig:
     target_horizon: float = 0.05
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
+    closed_loop: bool = False
+    task_acceleration: float = 30.0
+    max_command_lead: float | None = 0.15
+    measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
+    posture_policy: str | None = None
+    wrist_only_posture_gain: float = 2.0
+    mimicry_eta: float = 10.0
 
     def __post_init__(self) -> None:
-        from services.solver.algorithms import ALGORITHMS
         from services.solver.qp import QP_BACKENDS
+        from services.solver.registry import ALGORITHMS
 
         if self.algo not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {self.algo!r}; known: {sorted(ALGORITHMS)}")
@@ -114,12 +148,15 @@ class SolverConfig:
             raise ValueError(f"rate must be in [1, 10000] Hz, got {self.rate}")
         if self.wrist_orientation_level not in (1, 2, 3):
             raise ValueError(f"wrist_orientation_level must be 1 (paper), 2 or 3, got {self.wrist_orientation_level}")
+        if self.max_command_lead is not None and not self.max_command_lead > 0:
+            raise ValueError(f"max_command_lead must be > 0 [rad] or None, got {self.max_command_lead}")
         gains = {"gain": self.gain, "posture_gain": self.posture_gain, "orientation_gain": self.orientation_gain}
         bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
         if bad:
             raise ValueError(f"gains [1/s] must be > 0, got {bad}")
-        if self.smoothing_ticks < 1:
-            raise ValueError(f"smoothing_ticks must be >= 1, got {self.smoothing_ticks}")
+        if self.smoothing_ticks <= MAX_STEP_TICKS:
+            # A tick may cover up to MAX_STEP_TICKS nominal ticks: the smoother's segment must be longer.
+            raise ValueError(f"smoothing_ticks must be > {MAX_STEP_TICKS:g}, got {self.smoothing_ticks}")
 
     @property
     def dt(self) -> float:
@@ -127,7 +164,7 @@ class SolverConfig:
 
 
 class SolverCore:
-    """Fixed-rate joint command generator for one robot.
+    """Joint command generator for one robot, stepped at any rate.
 
     Args:
         robot: reduced robot model (14 or 17 joints).
@@ -141,7 +178,42 @@ class SolverCore:
         self.dt = cfg.dt
         self.n = robot.nq
         self.configuration = Configuration(robot)
-        gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
+        self._build_levels(cfg)
+        #: The published command's limits; the raw solution keeps headroom inside them for the smoother.
+        self.limits = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax)
+        fv, fa, m = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION, RAW_POSITION_MARGIN) if cfg.smoothing else (1, 1, 0)
+        m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
+        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
+        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.smoother = (
+            QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks, limits=self.limits) if cfg.smoothing else None
+        )
+        self.q_raw = robot.q_rest.copy()  # the solver's own integrated state
+        self.qd_raw = np.zeros(self.n)  # its velocity (the acceleration limit's reference)
+        self.q_out = robot.q_rest.copy()  # last published position
+        self.qd_out = np.zeros(self.n)
+        self.initialised = False
+        self.last_step = self.dt  # [s] the time the last tick covered
+        self._t_last: float | None = None
+        self._measured: np.ndarray | None = None
+        self._t_measured = -np.inf
+        self._window = (np.empty(self.n), np.empty(self.n))
+        self._joints = list(robot.joint_names)  # shared by every command (never mutated)
+        self.counts = {
+            "ticks": 0,
+            "failed": 0,
+            "safety_clamps": 0,
+            "smoothing_limited": 0,
+            "resyncs": 0,
+            "qp_calls": 0,
+            "policy_ticks": 0,
+            "gate_closed": 0,
+        }
+
+    def _build_levels(self, cfg: SolverConfig) -> None:
+        """The tasks and the priority levels of ``cfg.wrist_orientation_level`` (and of seed 004's pieces)."""
+        robot = self.robot
+        self._gain = gain = min(cfg.gain, MAX_GAIN_DT * cfg.rate)
         self.elbow_tasks = [PositionTask(e, cfg.elbow_cost, gain) for e in ELBOWS]
         self.posture_task = PostureTask(robot.q_rest, cfg.posture_cost, cfg.posture_gain)
         if cfg.wrist_orientation_level == 1:
@@ -155,7 +227,7 @@ class SolverCore:
             # independently mapped orientations cannot spoil the wrist and elbow positions.
             # The posture shares the last level as a light regulariser (cost 1e-2 against 0.3:
             # about 1e-3 of the orientation's weight), which keeps three levels and residuals.
-            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 0.0, gain) for w in WRISTS]
+            self.wrist_tasks = [PositionTask(w, cfg.wrist_position_cost, gain) for w in WRISTS]
             og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
             self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
             if cfg.wrist_orientation_level == 2:
@@ -163,15 +235,110 @@ class SolverCore:
                 self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
             else:
                 self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
-        self.limits = [ConfigurationLimit(robot.lower, robot.upper), VelocityLimit(robot.vmax)]
-        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
-        self.smoother = QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks) if cfg.smoothing else None
-        self.q_raw = robot.q_rest.copy()  # the solver's own integrated state
-        self.q_out = robot.q_rest.copy()  # last published position
-        self.qd_out = np.zeros(self.n)
-        self.initialised = False
-        self._joints = list(robot.joint_names)  # shared by every command (never mutated)
-        self.counts = {"ticks": 0, "failed": 0, "safety_clamps": 0, "smoothing_clamps": 0, "resyncs": 0, "qp_calls": 0}
+        self._setup_posture(robot, cfg, gain)
+        self._position_tasks = list(self.wrist_tasks)
+
+    def _setup_posture(self, robot: RobotModel, cfg: SolverConfig, gain: float) -> None:
+        """Seed 004's pieces: upper-arm alignment (clik-mimicry) and the wrist-only posture level."""
+        from services.posture.features import action_joints, arm_joints
+
+        self.arm_idx = {s: arm_joints(robot, s) for s in SIDES}
+        self.act_idx = {s: action_joints(robot, s) for s in SIDES}
+        #: side -> task on the level below the wrists for a wrist-only arm (policy q̇₀ or rest pull)
+        self.slot_tasks = {s: JointVelocityTask(self.arm_idx[s], self.n) for s in SIDES}
+        self.policy = None
+        if cfg.posture_policy:
+            from services.posture.policy import PolicyError, PosturePolicy
+
+            self.policy = PosturePolicy.load(cfg.posture_policy)
+            if self.policy.robot != robot.profile.name:
+                raise PolicyError(f"posture policy is for robot {self.policy.robot!r}, not {robot.profile.name!r}")
+        rest = robot.frame_poses(robot.q_rest, names=WRISTS)
+        self._q_ref = {s: matrix_to_quat(rest[f"{s}_wrist"][1]) for s in SIDES}
+        #: side -> latest operator upper-arm orientation (3, 3), None when the last targets had none
+        self.upper_arm: dict[str, np.ndarray | None] = dict.fromkeys(SIDES)
+        self.align_tasks: dict[str, AlignmentTask] = {}
+        self._layouts: dict[tuple[str, ...], list] = {}
+        self.wrist_only: tuple[str, ...] = ()
+        self.last_gate: dict[str, bool] = {}
+        if cfg.algo == "clik-mimicry":
+            # The paper's controller: full wrist poses as the end-effector task (eq. 2), the upper-arm
+            # alignment (eqs. 3-6) as q̇₀; a wrist-only arm gets the posture level's velocities instead.
+            self.align_tasks = {s: AlignmentTask(upper_arm_frame(robot.profile, s), self.act_idx[s]) for s in SIDES}
+            self.wrist_tasks = [FrameTask(w, cfg.wrist_position_cost, 1.0, gain) for w in WRISTS]
+            self.orientation_tasks = []
+            self.levels = [self.wrist_tasks, [*self.align_tasks.values()]]
+            self.algorithm.eta = cfg.mimicry_eta
+
+    def _levels_for(self, wrist_only: tuple[str, ...]) -> list:
+        """Levels with the wrist-only arms' elbow tasks removed and their posture tasks one level below the
+        wrist tasks (just above the rest posture); cached per set of wrist-only arms."""
+        levels = self._layouts.get(wrist_only)
+        if levels is None:
+            slot = [self.slot_tasks[s] for s in wrist_only]
+            if self.config.algo == "clik-mimicry":
+                levels = [self.levels[0], [*self.levels[1], *slot]]
+            else:
+                drop = {id(t) for t in self.elbow_tasks if side_of(t.frame) in wrist_only}
+                kept = [[t for t in lv if id(t) not in drop] for lv in self.levels]
+                kept = [lv for lv in kept if lv]
+                levels = [*kept[:-1], slot, kept[-1]] if slot else kept
+            self._layouts[wrist_only] = levels
+        return levels
+
+    def _posture_level(self, t: float) -> tuple[str, ...]:
+        """Wrist-only arms at time t, with their posture tasks set (policy q̇₀ or the rest pull)."""
+        wo = []
+        for s in SIDES:
+            if self.config.algo == "clik-mimicry":
+                task = self.align_tasks[s]
+                if self.upper_arm[s] is not None:
+                    task.set_target(self.upper_arm[s], check=False)
+                    continue
+                task.clear()
+                wo.append(s)
+                continue
+            e = self.tracker.sample(f"{s}_elbow", t)
+            if e is None or (e.held and self.policy is not None):
+                wo.append(s)
+        if not wo:
+            return ()
+        q = self.q_raw
+        gate = dict.fromkeys(wo, False)
+        out = None
+        if self.policy is not None:
+            S = np.zeros((2, 14))
+            have = True
+            for i, s in enumerate(SIDES):
+                w = self.tracker.sample(f"{s}_wrist", t)
+                if w is None:
+                    have = False
+                    break
+                Q = matrix_to_quat(w.R)
+                if Q @ self._q_ref[s] < 0.0:
+                    Q = -Q
+                S[i, :4] = Q
+                S[i, 4:7] = w.p
+                S[i, 7:] = q[self.arm_idx[s]]
+            if have:
+                out = self.policy.act(S)
+                self.counts["policy_ticks"] += 1
+                for i, s in enumerate(SIDES):
+                    if s in gate:
+                        gate[s] = bool(out.gate[i])
+        for i, s in enumerate(SIDES):
+            if s not in gate:
+                continue
+            v = np.zeros(len(self.arm_idx[s]))
+            if gate[s]:
+                v[: out.qd0.shape[1]] = out.qd0[i]
+            else:
+                if self.policy is not None:
+                    self.counts["gate_closed"] += 1
+                v = self.config.wrist_only_posture_gain * (self.robot.q_rest[self.arm_idx[s]] - q[self.arm_idx[s]])
+            self.slot_tasks[s].set_velocity(v)
+        self.last_gate = gate
+        return tuple(wo)
 
     # ------------------------------------------------------------------ state
 
@@ -179,6 +346,7 @@ class SolverCore:
         """Restart from q (n,) [rad] at rest (clipped into the position limits)."""
         q = self.robot.clip(np.asarray(q, dtype=float))
         self.q_raw[:] = q
+        self.qd_raw[:] = 0.0
         self.q_out[:] = q
         self.qd_out[:] = 0.0
         if self.smoother is not None:
@@ -193,10 +361,42 @@ class SolverCore:
             raise ValueError(f"measured q must be ({self.n},) finite, got shape {q.shape}")
         return q
 
+    def _elapsed(self, t: float) -> float:
+        """Time [s] this tick covers: the real time since the last tick, clamped to a sane range."""
+        dt = self.dt if self._t_last is None else min(max(t - self._t_last, MIN_STEP), MAX_STEP_TICKS * self.dt)
+        self._t_last = t
+        self.last_step = dt
+        return dt
+
+    def _anchor(self, measured: np.ndarray | None, t: float) -> None:
+        """Start from the measured joints (or rest); keep them for the lead window; resync when they jumped."""
+        if measured is not None:
+            self._measured = measured
+            self._t_measured = t
+        if not self.initialised:
+            self.reset(self.robot.q_rest if measured is None else measured)
+        elif (
+            measured is not None
+            and self.config.closed_loop
+            and np.max(np.abs(measured - self.q_out)) > self.config.resync_threshold
+        ):
+            self.counts["resyncs"] += 1
+            self.reset(measured)
+
+    def _lead_window(self, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi) (n,) [rad] around fresh measured joints, or None (off, none yet, or stale)."""
+        lead = self.config.max_command_lead
+        if lead is None or self._measured is None or t - self._t_measured > self.config.measured_timeout:
+            return None
+        lo, hi = self._window
+        np.subtract(self._measured, lead, out=lo)
+        np.add(self._measured, lead, out=hi)
+        return lo, hi
+
     # ------------------------------------------------------------------ tick
 
     def step(self, targets: TaskTargets | None, measured_q: np.ndarray | None, t: float) -> JointCommand:
-        """One control tick at solver time t [s].
+        """One control tick at solver time t [s] (monotonic; the step covers the time since the last tick).
 
         Args:
             targets: newest TaskTargets since the last tick, or None.
@@ -204,97 +404,120 @@ class SolverCore:
             t: monotonic solver time [s].
         """
         t_start = time.perf_counter()
-        cfg = self.config
-        measured = self._check_measured(measured_q)
-        if not self.initialised:
-            self.reset(self.robot.q_rest if measured is None else measured)
-        elif measured is not None and np.max(np.abs(measured - self.q_out)) > cfg.resync_threshold:
-            self.counts["resyncs"] += 1
-            self.reset(measured)
+        self._anchor(self._check_measured(measured_q), t)
+        dt = self._elapsed(t)
         if targets is not None:
             self.tracker.update(targets, t)
+            for s in SIDES:
+                q_m = targets.upper_arms.get(s)
+                self.upper_arm[s] = None if q_m is None else quat_to_matrix(q_m)
         self.counts["ticks"] += 1
         if not self.tracker.started:
             # Hold the pose we started from until the first targets arrive.
             self.qd_out[:] = 0.0
             return self._command("init", [], 0, 0, "waiting for targets", t_start, t)
-
-        conf = self.configuration
-        conf.update(self.q_raw)
+        self.configuration.update(self.q_raw)
+        self.wrist_only = self._posture_level(t)
         held = self._set_targets(t)
-        sol = self.algorithm.solve(conf, self.levels, self.limits, self.dt)
+        self._shape_gains()
+        lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
+        sol = self.algorithm.solve(self.configuration, self._levels_for(self.wrist_only), lb, ub)
         self.counts["qp_calls"] += sol.qp_calls
-        lb, ub = self.algorithm.last_bounds  # the bounds this tick's solve used (same q, same dt)
-        reason = sol.reason
-        if sol.ok and np.all(np.isfinite(sol.qd)):
-            qd = sol.qd
-            if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
-                self.counts["safety_clamps"] += 1
-                reason = (reason + "; " if reason else "") + "safety clamp"
-            qd = np.minimum(np.maximum(qd, lb), ub)
-            if held:
-                status = "held"
-                reason = "; ".join([*held, reason] if reason else held)
-            elif sol.residuals and sol.residuals[0] > cfg.infeasible_tol:
-                status = "infeasible"
-                why = (
-                    f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {cfg.infeasible_tol:g}: "
-                    "target out of reach or faster than the joint limits allow"
-                )
-                reason = f"{why}; {reason}" if reason else why
-            else:
-                status = "ok"
-        else:
-            self.counts["failed"] += 1
-            qd = np.zeros(self.n)
-            status = "failed"
-            reason = reason or "solution not finite"
-        q_next = self.q_raw + qd * self.dt
-        np.minimum(np.maximum(q_next, self.robot.lower, out=q_next), self.robot.upper, out=self.q_raw)
-        q_prev = self.q_out.copy()
-        if self.smoother is not None:
-            self.smoother.step(self.q_raw, qd)
-            if self.smoother.clamp(q_prev, self.robot.lower, self.robot.upper, self.robot.vmax):
-                self.counts["smoothing_clamps"] += 1
-            self.q_out[:] = self.smoother.p
-            self.qd_out[:] = self.smoother.v
-        else:
-            self.q_out[:] = self.q_raw
-            self.qd_out[:] = qd
+        qd, reason = self._checked_velocity(sol, lb, ub)
+        status, reason = self._status(sol, held, reason)
+        self._integrate(qd, dt)
+        self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
+
+    def _checked_velocity(self, sol: Solution, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray | None, str]:
+        """The solution's qd within [lb, ub], or None when it failed; the reason text so far."""
+        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+            self.counts["failed"] += 1
+            return None, sol.reason or "solution not finite"
+        qd = sol.qd
+        reason = sol.reason
+        if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
+            self.counts["safety_clamps"] += 1
+            reason = (reason + "; " if reason else "") + "safety clamp"
+        return np.minimum(np.maximum(qd, lb), ub), reason
+
+    def _status(self, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
+        """Command status and its reason: failed, held, infeasible (level-1 residual) or ok."""
+        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+            return "failed", reason
+        if held:
+            return "held", "; ".join([*held, reason] if reason else held)
+        if sol.residuals and sol.residuals[0] > self.config.infeasible_tol:
+            why = (
+                f"level-1 (wrist) residual {sol.residuals[0]:.3g} > {self.config.infeasible_tol:g}: "
+                "target out of reach or faster than the joint limits allow"
+            )
+            return "infeasible", f"{why}; {reason}" if reason else why
+        return "ok", reason
+
+    def _integrate(self, qd: np.ndarray | None, dt: float) -> None:
+        """q_raw += qd dt; a failed solve (qd None) brakes as hard as the bounds allow."""
+        if qd is None:
+            qd = np.minimum(np.maximum(0.0, self.bounds.lb), self.bounds.ub)
+        q_next = self.q_raw + qd * dt
+        np.minimum(np.maximum(q_next, self.bounds.lower, out=q_next), self.bounds.upper, out=self.q_raw)
+        self.qd_raw[:] = qd
+
+    def _publish_state(self, qd: np.ndarray | None, dt: float) -> None:
+        """The published q, qd: the smoothed trajectory, or the raw one without smoothing."""
+        if self.smoother is None:
+            self.q_out[:] = self.q_raw
+            self.qd_out[:] = self.qd_raw
+            return
+        clamped = self.smoother.step(self.q_raw, self.qd_raw, dt)
+        self.counts["smoothing_limited"] += self.smoother.limited > 0
+        self.counts["safety_clamps"] += clamped > 0
+        self.q_out[:] = self.smoother.p
+        self.qd_out[:] = self.smoother.v
+
+    def _shape_gains(self) -> None:
+        """Wrist (level 1) gains that ask for no more than the wrists can brake from.
+
+        A proportional velocity demand ``gain * e`` under an acceleration limit overshoots: it
+        asks to keep speed until the error is nearly gone and then cannot stop (a 0.05 rad joint step
+        at gain 200 and 100 rad/s^2 overshoots by half). The demand is capped at the braking speed ``sqrt(2 a e)`` with
+        ``a = task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
+        errors (below 2 a / gain^2, 1.5 mm at the defaults), braking in time for large ones.
+        """
+        a2 = 2.0 * self.config.task_acceleration
+        conf = self.configuration
+        for task in self._position_tasks:
+            e = task.p_target - conf.get_frame_pose(task.frame)[0]
+            e2 = float(e @ e)
+            task.gain = self._gain if e2 * self._gain**4 <= a2 * a2 else min(self._gain, (a2 / math.sqrt(e2)) ** 0.5)
 
     def _set_targets(self, t: float) -> list[str]:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""
         conf = self.configuration
+        samples = {name: self.tracker.sample(name, t) for name in (*WRISTS, *ELBOWS)}
         missing: list[str] = []
         held: list[str] = []
-        for task in self.wrist_tasks:
-            s = self.tracker.sample(task.frame, t)
+        elbows = [t for t in self.elbow_tasks if side_of(t.frame) not in self.wrist_only]  # wrist-only: posture level
+        for task in (*self.wrist_tasks, *elbows):
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 missing.append(task.frame)
                 continue
-            task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
-            if not self.orientation_tasks:
+            if isinstance(task, FrameTask):  # the paper's hierarchy: full wrist poses on level 1
+                task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
                 task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+            else:
+                task.set_target(s.p, s.v, check=False)
             if s.held:
                 held.append(task.frame)
         for task in self.orientation_tasks:
-            s = self.tracker.sample(task.frame, t)
+            s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)
                 continue
             task.set_target(s.p, s.R, s.v, s.w, check=False)
             task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
-        for task in self.elbow_tasks:
-            s = self.tracker.sample(task.frame, t)
-            if s is None:
-                task.set_target_from_configuration(conf)
-                missing.append(task.frame)
-                continue
-            task.set_target(s.p, s.v, check=False)
-            if s.held:
-                held.append(task.frame)
         why: list[str] = []
         if self.tracker.stale(t):
             why.append(f"targets stale (none for {self.tracker.timeout:g} s): holding")

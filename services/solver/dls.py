@@ -1,12 +1,12 @@
-"""Damped least squares IK (seed 003, section 1.2): Newton iterations at position level.
+"""Damped least squares (seed 003, section 1.2) on the first level, the simple baseline.
 
-Only the first level (the wrist poses) is used, as the simple baseline:
+    qd = (A_1^T A_1 + lambda I)^-1 A_1^T b_1,      then clipped into the joint bounds
 
-    q <- q + (J^T W J + lambda I)^-1 J^T W e(q)       (a few iterations per tick)
-
-with ``e`` the pose error towards the target advanced by its velocity over dt.
-Each iterate is clipped into the box reachable in one step from the current q
-(position limits and vmax dt), and the joint velocity is ``(q_new - q) / dt``.
+with ``A_1 = W J`` and ``b_1 = W (v_ff + gain e)`` the level-1 rows (the wrists)
+as every algorithm gets them: the configured gain, the target velocity fed
+forward. Lower levels are ignored (their residuals are still reported), and the
+limits only clip the result, so a clipped joint costs the wrists accuracy: both
+are the method's known weaknesses against the HQP.
 """
 
 from __future__ import annotations
@@ -16,65 +16,33 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.linalg import lapack
 
-from services.solver.algorithm import Algorithm, Solution, count_active, level_residuals
-from shared.kinematics import Configuration, Limit, Task
+from services.solver.base import Algorithm, Solution, count_active, level_residuals
 
 
 class DampedLeastSquares(Algorithm):
-    """Position-level DLS on the level-1 tasks.
+    """Velocity-level DLS on the level-1 rows, clipped into the bounds.
 
     Args:
-        damping: lambda, Levenberg-Marquardt damping.
-        iterations: Newton iterations per tick.
+        damping: lambda > 0, Levenberg-Marquardt damping [(rad/s)^-2 in the rows' units].
     """
 
     name = "dls"
 
-    def __init__(self, damping: float = 1e-3, iterations: int = 3):
+    def __init__(self, damping: float = 1e-6):
         super().__init__()
-        if damping <= 0 or iterations < 1:
-            raise ValueError("damping must be > 0 and iterations >= 1")
+        if not damping > 0:
+            raise ValueError(f"damping must be > 0, got {damping}")
         self.damping = damping
-        self.iterations = iterations
 
-    def solve(
-        self,
-        configuration: Configuration,
-        levels: Sequence[Sequence[Task]],
-        limits: Sequence[Limit],
-        dt: float,
-    ) -> Solution:
-        if not levels or not levels[0]:
-            raise ValueError("at least one level with one task is needed")
-        As, bs = self.stack(levels, configuration.nv).fill(configuration)
-        lb, ub = self.bounds(limits, configuration, dt)
-        q0 = configuration.q.copy()
-        lo, hi = q0 + lb * dt, q0 + ub * dt
-        tasks = levels[0]
-        m = sum(t.dim for t in tasks)
-        J = np.empty((m, configuration.nv))
-        e = np.empty(m)
-        q = q0.copy()
-        try:
-            for it in range(self.iterations):
-                if it:
-                    configuration.update(q)
-                i = 0
-                for t in tasks:
-                    w = t.cost
-                    J[i : i + t.dim] = w[:, None] * t.compute_jacobian(configuration)
-                    e[i : i + t.dim] = w * (t.compute_error(configuration) + t.feedforward() * dt)
-                    i += t.dim
-                H = J.T @ J
-                H.flat[:: H.shape[0] + 1] += self.damping
-                _c, step, info = lapack.dposv(H, J.T @ e)
-                if info != 0 or not np.all(np.isfinite(step)):
-                    return Solution(np.zeros_like(q0), level_residuals(As, bs, 0 * q0), False, it, 0, 0, "DLS step")
-                np.clip(q + step, lo, hi, out=q)
-        finally:
-            configuration.update(q0)
-        qd = np.clip((q - q0) / dt, lb, ub)
-        return Solution(qd, level_residuals(As, bs, qd), True, self.iterations, 0, count_active(qd, lb, ub))
-
-    def solve_matrices(self, As, bs, lb, ub):
-        raise NotImplementedError("DLS iterates on the kinematics; call solve(configuration, levels, limits, dt)")
+    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+        A, b = As[0], bs[0]
+        H = A.T @ A
+        H.flat[:: H.shape[0] + 1] += self.damping
+        _c, qd, info = lapack.dposv(H, A.T @ b)
+        if info != 0 or not np.all(np.isfinite(qd)):
+            zero = np.zeros_like(lb)
+            return Solution(zero, level_residuals(As, bs, zero), False, 0, 0, 0, f"DLS: dposv info {info}")
+        clipped = np.minimum(np.maximum(qd, lb), ub)
+        n_clipped = int(np.count_nonzero(clipped != qd))
+        reason = f"clipped {n_clipped} joints" if n_clipped else ""
+        return Solution(clipped, level_residuals(As, bs, clipped), True, 0, 0, count_active(clipped, lb, ub), reason)

@@ -2,8 +2,9 @@
 
     x = 0; Z = I
     for each level k:
-        z* = argmin ||A_k (x + Z z) - b_k||^2 + eps ||z||^2   s.t.  lb <= x + Z z <= ub
-        x = x + Z z*
+        x0 = x + Z Z^T (mid - x)               (nearest the box centre mid = (lb + ub) / 2)
+        w* = argmin ||A_k (x0 + Z w) - b_k||^2 + eps ||w||^2   s.t.  lb <= x0 + Z w <= ub
+        x = x0 + Z w*
         Z = Z null(A_k Z)        (column-pivoted QR, rank-revealing)
 
 Each level only moves inside the null space of every level above it, so it can
@@ -23,38 +24,29 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.linalg import lapack
 
-from services.solver.algorithm import (
+from services.solver.active_set import refine_on_active_set
+from services.solver.base import (
     QP_BOUND_TOL,
-    Algorithm,
     Solution,
     clip,
     count_active,
     level_residuals,
-    level_value,
-    polish,
+    violation,
     within,
 )
+from services.solver.cascade import RETRY_EPS, CascadeQp
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
-#: Regularisation of the one retry of a level whose QP failed.
-RETRY_EPS = 1e-6
 
-
-class HqpNullspace(Algorithm):
+class HqpNullspace(CascadeQp):
     """Null-space recursive HQP.
 
     Args:
-        backend: QP backend for levels whose unconstrained optimum breaks a bound.
-        eps: damping of each level (one value, or one per level; the last repeats): ``eps ||z||^2`` in
-            its objective (the shortcut and the
-            QP solve the same damped problem). Tiny (1e-9) gives the exact lexicographic
-            optimum; the service uses about 1e-4 so near-singular directions of a level do
-            not ask for huge joint velocities.
+        backend, eps, refine: see :class:`CascadeQp` (the shortcut and the QP solve the same damped problem).
         shortcut: try the unconstrained optimum before calling the QP.
-        polish: refine each QP solution on its active set (see ``polish``); default: only for
-            PIQP, whose interior-point answer is tolerance-limited (DAQP's active set is exact).
     """
 
     name = "hqp-nullspace"
@@ -64,52 +56,60 @@ class HqpNullspace(Algorithm):
         backend: QpBackend,
         eps: float | Sequence[float] = 1e-9,
         shortcut: bool = True,
-        polish: bool | None = None,
+        refine: bool | None = None,
     ) -> None:
-        super().__init__()
-        self.polish = backend.name == "piqp" if polish is None else polish
-        self.backend = backend
-        self.eps = eps
+        super().__init__(backend, eps, refine)
         self.shortcut = shortcut
 
     def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
         n = lb.shape[0]
         x = np.zeros(n)
+        # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
+        # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
+        # unconstrained optimum out of it (a QP on every tick instead of a few).
+        mid = 0.5 * (lb + ub)
         Z: np.ndarray | None = None  # None means identity (first level)
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
             if Z is not None and Z.shape[1] == 0:
                 break  # no freedom left for lower levels
+            # This level moves x + Z w around base, the point of x + range(Z) nearest the box centre.
             if Z is None:
-                M, c = A, b
+                base, M = mid, A
             else:
-                M, c = A @ Z, b - A @ x
-            split = split_row_space(M)
+                base = x + Z @ (Z.T @ (mid - x))
+                M = A @ Z
+            c = b - A @ base
+            last = k == len(As) - 1
+            # The last level needs no null space: its damped optimum comes from the normal equations.
+            split = None if last and self.level_eps(k) > 0 else split_row_space(M)
             xt = None
             if self.shortcut:
-                z = split.lstsq(c, self._eps(k))
-                xt = x + (z if Z is None else Z @ z)
+                w = _damped_lstsq(M, c, self.level_eps(k)) if split is None else split.lstsq(c, self.level_eps(k))
+                xt = base + (w if Z is None else Z @ w)
                 if not within(xt, lb, ub):
                     xt = None
             if xt is None:
-                z, its, status = self._level_qp(M, c, Z, lb - x, ub - x, k)
+                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k)
                 iters += its
                 calls += 1
-                if z is None:
+                if w is None:
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {status}")
                     reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
                     break
-                xt = x + (z if Z is None else Z @ z)
+                xt = base + (w if Z is None else Z @ w)
                 # Within the QP's own tolerance: snap onto the box.
                 if not within(xt, lb, ub, QP_BOUND_TOL):
-                    reason = f"level {k + 1} QP left the box by {self._violation(xt, lb, ub):.2e}"
+                    reason = f"level {k + 1} QP left the box by {violation(xt, lb, ub):.2e}"
                     if k == 0:
                         return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, reason)
                     break
                 clip(xt, lb, ub)
             x = xt
+            if last:
+                break
             N = split.null_basis
             Z = N if Z is None else Z @ N
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
@@ -118,15 +118,15 @@ class HqpNullspace(Algorithm):
         """QP of one level in z: ``min ||M z - c||^2 + eps ||z||^2``, ``lo <= Z z <= hi`` (Z None = identity).
 
         A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
-        once with ``RETRY_EPS`` regularisation and polished, which removes that bias again.
+        once with ``RETRY_EPS`` regularisation and refined on its active set, which removes that bias again.
 
         Returns:
             (z or None, iterations, status text).
         """
         iters = 0
         status = ""
-        eps0 = self._eps(k)
-        for eps, refine in ((eps0, self.polish), (max(RETRY_EPS, eps0), True)):
+        eps0 = self.level_eps(k)
+        for eps, refine in ((eps0, self.refine), (max(RETRY_EPS, eps0), True)):
             H = M.T @ M
             H.flat[:: H.shape[0] + 1] += eps
             f = -(M.T @ c)
@@ -137,12 +137,15 @@ class HqpNullspace(Algorithm):
             iters += r.iters
             status = r.status
             if r.ok:
-                return (polish(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
+                return (refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0) if refine else r.x), iters, status
         return None, iters, status
 
-    def _eps(self, k: int) -> float:
-        return level_value(self.eps, k)
 
-    @staticmethod
-    def _violation(x: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
-        return float(max(np.max(lb - x), np.max(x - ub), 0.0))
+def _damped_lstsq(M: np.ndarray, c: np.ndarray, eps: float) -> np.ndarray:
+    """argmin ||M w - c||^2 + eps ||w||^2 for eps > 0: (M^T M + eps I) w = M^T c (positive definite)."""
+    H = M.T @ M
+    H.flat[:: H.shape[0] + 1] += eps
+    _c, w, info = lapack.dposv(H, M.T @ c)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dposv failed with info={info}")
+    return w

@@ -2,7 +2,7 @@
 
 Level k is solved over all n variables:
 
-    min ||A_k x - b_k||^2 + eps ||x||^2
+    min ||A_k x - b_k||^2 + eps ||x - mid||^2        (mid: the box centre)
     s.t. lb <= x <= ub                                  (5c)
          A_aug x = A_aug x*_{k-1}                       (5d)
 
@@ -21,73 +21,69 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.solver.algorithm import (
-    QP_BOUND_TOL,
-    Algorithm,
-    Solution,
-    clip,
-    count_active,
-    level_residuals,
-    level_value,
-    polish,
-    within,
-)
-from services.solver.hqp_nullspace import RETRY_EPS
+from services.solver.active_set import refine_on_active_set
+from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
+from services.solver.cascade import RETRY_EPS, CascadeQp
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
 
-class HqpOriginal(Algorithm):
+class HqpOriginal(CascadeQp):
     """Stacked-equality cascade HQP.
 
     Args:
         backend: QP backend (every level is a QP).
         eps: damping ``eps ||x||^2`` of each level (one value or one per level, the last repeats);
-            the QP itself gets at least the backend's regularisation, which polish removes again.
-        polish: refine each QP solution on its active set.
+            the QP itself gets at least the backend's regularisation, which the refinement removes again.
+        refine: refine each QP solution on its active set (default on, for both backends: the stacked
+            equalities go to DAQP as a band).
     """
 
     name = "hqp-original"
 
-    def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, polish: bool = True):
-        super().__init__()
-        self.polish = polish
-        self.backend = backend
-        self.eps = eps
+    def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, refine: bool = True):
+        super().__init__(backend, eps, refine)
 
     def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
         n = lb.shape[0]
-        x = np.zeros(n)
+        # Solved in y = x - mid (mid: the box centre), so that the damping pulls towards the centre of the
+        # box, as in HQP-Nullspace: with acceleration limits the box is a band around the last velocity.
+        mid = 0.5 * (lb + ub)
+        lo, hi = lb - mid, ub - mid
+        y = np.zeros(n)
         iters = calls = 0
         reason = ""
         for k, (A, b) in enumerate(zip(As, bs)):
-            eps = level_value(self.eps, k)
+            eps = self.level_eps(k)
+            c = b - A @ mid
             H = A.T @ A
             H.flat[:: n + 1] += max(eps, self.backend.regularization)
-            f = -(A.T @ b)
+            f = -(A.T @ c)
             E = e = None
             if k > 0:
                 split = split_row_space(np.vstack(As[:k]))
                 if split.rank >= n:
                     break  # higher levels pin every variable
                 E = np.ascontiguousarray(split.Q[:, : split.rank].T)
-                e = E @ x
-            r = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+                e = E @ y
+            r = self.backend.solve(H, f, lb=lo, ub=hi, E=E, e=e, key=f"orig{k}")
             if not r.ok:
                 # Degenerate stacks can be called infeasible by an active-set solver: one retry,
-                # better conditioned; the polish below removes the extra regularisation's bias.
+                # better conditioned; the refinement below removes the extra regularisation's bias.
                 H.flat[:: n + 1] += RETRY_EPS
-                r2 = self.backend.solve(H, f, lb=lb, ub=ub, E=E, e=e, key=f"orig{k}")
+                r2 = self.backend.solve(H, f, lb=lo, ub=hi, E=E, e=e, key=f"orig{k}")
                 r2.iters += r.iters
                 r = r2
             iters += r.iters
             calls += 1
-            if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL):
+            if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL):
                 why = r.status if not r.ok else "QP left the box"
                 if k == 0:
+                    x = np.zeros(n)
                     return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
                 reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
                 break
-            xs = polish(A, b, r.x, None, lb, ub, E, e, eps=eps) if self.polish else r.x
-            x = clip(np.array(xs), lb, ub)
+            ys = refine_on_active_set(A, c, r.x, None, lo, hi, E, e, eps=eps) if self.refine else r.x
+            y = clip(np.array(ys), lo, hi)
+        x = clip(mid + y, lb, ub)
         return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)

@@ -1,17 +1,43 @@
-"""Quintic smoothing of the joint trajectory between solver outputs (seed 000, section 3).
+"""Quintic smoothing of the joint trajectory between solver outputs (seed 000, section 3), within limits.
 
-Every tick a quintic polynomial is fitted from the current smoothed state
-(position, velocity, acceleration) to the solver's latest output, extrapolated
-over a short horizon T, with zero acceleration at its end; the command is that
-polynomial one tick later. Consecutive segments share position, velocity and
-acceleration at the junction, so the commanded trajectory is C2 however
-abruptly the raw solution changes. With a constant-velocity raw trajectory the
-smoother follows it exactly (no lag).
+Every tick a quintic polynomial runs from the current smoothed state (position,
+velocity, acceleration) to a segment end: the solver's latest output
+extrapolated over a short horizon T, with zero acceleration there. The command
+is that polynomial one tick later (at the real elapsed time s). The next segment
+starts from exactly that state, so the commanded trajectory is C2 whatever the
+segment ends are.
+
+That freedom is what keeps the command within its limits without breaking C2:
+the state at s is affine in the segment end, so per joint the end is moved
+along the line from the "keep the current velocity" end (lambda = 0) to the
+desired end (lambda = 1), and the largest lambda <= 1 is taken for which the
+next state respects the position limits, the velocity limit and the braking
+distance before a position limit, the step |dq| <= vmax s, the acceleration
+limit and |dqd| <= a_max s (lambda outside [0, 1] when needed). Only when no
+lambda does is the state clamped, which breaks C2; that is counted, and with a
+raw trajectory that keeps ``RAW_*_FRACTION`` of the limits it stays 0 in the
+tests. With a constant-velocity raw trajectory the smoother follows it exactly.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from services.solver.bounds import JointBounds
+
+#: Fraction of a_max the smoother plans its braking before a position limit with: the headroom covers
+#: a quintic piece covering more distance than the constant-velocity step the braking bound assumes.
+BRAKE_DECEL = 0.8
+#: Crossing of the lambda interval ends accepted as round-off.
+LAMBDA_SLACK = 1e-9
+#: Headroom the raw trajectory leaves the smoother: its velocity and acceleration bounds are these
+#: fractions of the limits. The smoother lags and overshoots its input a little; with this headroom
+#: the limiter always finds a segment end within the limits (0 clamps in 15 000 violent test ticks,
+#: against about 1 in 150 ticks when the raw trajectory runs at the full limits).
+RAW_VMAX_FRACTION = 0.95
+RAW_AMAX_FRACTION = 0.5
+#: ... and this much [rad] of each position limit: the smoother reaches a stop a little after its input.
+RAW_POSITION_MARGIN = 0.01
 
 
 def quintic_coefficients(
@@ -26,37 +52,62 @@ def quintic_coefficients(
     return p0, v0, 0.5 * a0, c3, c4, c5
 
 
+def _coefficient_map(T: float) -> np.ndarray:
+    """(6, 5) matrix C with (c0..c5) = C @ (p0, v0, a0, p1, v1) for a1 = 0 (``quintic_coefficients``)."""
+    C = np.zeros((6, 5))
+    for j in range(5):
+        e = np.zeros(5)
+        e[j] = 1.0
+        C[:, j] = quintic_coefficients(e[0], e[1], e[2], e[3], e[4], 0.0, T)
+    return C
+
+
 class QuinticSmoother:
-    """Receding-horizon quintic filter of a joint trajectory.
+    """Receding-horizon quintic filter of a joint trajectory, kept within joint limits.
 
     Args:
         n: number of joints.
-        dt: tick [s].
+        dt: nominal tick [s]; the horizon is ``horizon_ticks * dt``.
         horizon_ticks: segment length T in ticks (>= 2; larger = smoother, slower to react).
+        limits: position, velocity and acceleration limits of the output (None: unlimited).
     """
 
-    def __init__(self, n: int, dt: float, horizon_ticks: int = 4):
+    def __init__(self, n: int, dt: float, horizon_ticks: int = 4, limits: JointBounds | None = None):
         if horizon_ticks < 2:
             raise ValueError(f"horizon_ticks must be >= 2, got {horizon_ticks}")
         self.dt = dt
         self.T = horizon_ticks * dt
+        self.limits = limits
+        self.limited = 0  # joints whose segment end the limiter moved at the last step
         # State rows: p, v, a (smoothed) and the segment end p1, v1 (a1 = 0).
         self._S = np.zeros((5, n))
         self.p, self.v, self.a = self._S[0], self._S[1], self._S[2]
-        # p, v, a at s = dt are linear in (p0, v0, a0, p1, v1): precompute that (3, 5) map once.
-        self._K = self._propagator(dt, self.T)
+        self._C = _coefficient_map(self.T)
+        self._s = -1.0
+        self._K = np.zeros((3, 5))
+        self._Y = np.zeros((6, n))  # limited quantities of the next state (see _limit)
+        self._lo = np.zeros((6, n))
+        self._hi = np.zeros((6, n))
 
-    @staticmethod
-    def _propagator(s: float, T: float) -> np.ndarray:
-        K = np.zeros((3, 5))
-        for j in range(5):
-            e = np.zeros((5, 1))
-            e[j] = 1.0
-            c0, c1, c2, c3, c4, c5 = quintic_coefficients(e[0], e[1], e[2], e[3], e[4], np.zeros(1), T)
-            K[0, j] = (c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5)))))[0]
-            K[1, j] = (c1 + s * (2.0 * c2 + s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5))))[0]
-            K[2, j] = (2.0 * c2 + s * (6.0 * c3 + s * (12.0 * c4 + s * 20.0 * c5)))[0]
-        return K
+    def propagator(self, s: float) -> np.ndarray:
+        """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
+        if s != self._s:
+            s2, s3 = s * s, s * s * s
+            P = np.array(
+                [
+                    [1.0, s, s2, s3, s3 * s, s3 * s2],
+                    [0.0, 1.0, 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s],
+                    [0.0, 0.0, 2.0, 6.0 * s, 12.0 * s2, 20.0 * s3],
+                ]
+            )
+            np.matmul(P, self._C, out=self._K)
+            self._s = s
+        return self._K
+
+    @property
+    def segment_end(self) -> tuple[np.ndarray, np.ndarray]:
+        """(p1, v1) (n,) of the segment the last step was evaluated on (a1 = 0); views."""
+        return self._S[3], self._S[4]
 
     def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Start at rest (or at qd (n,) [rad/s]) at q (n,) [rad]."""
@@ -64,33 +115,105 @@ class QuinticSmoother:
         self.v[:] = 0.0 if qd is None else qd
         self.a[:] = 0.0
 
-    def step(self, q_raw: np.ndarray, qd_raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Advance one tick towards the raw solver state q_raw (n,) [rad], qd_raw (n,) [rad/s].
+    def step(self, q_raw: np.ndarray, qd_raw: np.ndarray, s: float | None = None) -> int:
+        """Advance by s [s] (default: the nominal tick) towards the raw state q_raw (n,) [rad], qd_raw (n,) [rad/s].
 
         Returns:
-            smoothed (q (n,) [rad], qd (n,) [rad/s]) one tick later (internal buffers; copy to keep).
+            number of joints whose state had to be clamped (C2 broken; 0 in normal operation).
+            The new state is in ``p``, ``v``, ``a``; ``limited`` says how many joints took a
+            shortened segment (C2 kept).
         """
+        s = self.dt if s is None else s
+        if not 0.0 < s < self.T:
+            raise ValueError(f"step {s} s must be in (0, {self.T}) s")
         S = self._S
+        K = self.propagator(s)
         # Aim at where the raw trajectory will be at the end of the horizon if its velocity holds.
         np.multiply(qd_raw, self.T - self.dt, out=S[3])
         S[3] += q_raw
         S[4] = qd_raw
-        S[:3] = self._K @ S
-        return self.p, self.v
-
-    def clamp(self, q_prev: np.ndarray, lower: np.ndarray, upper: np.ndarray, vmax: np.ndarray) -> int:
-        """Keep the smoothed state inside limits: |q - q_prev| <= vmax dt, lower <= q <= upper, |qd| <= vmax.
-
-        Returns:
-            number of joints that had to be clamped (0 in normal operation).
-        """
-        step = vmax * self.dt
-        lo = np.maximum(lower, q_prev - step)
-        hi = np.minimum(upper, q_prev + step)
-        changed = (self.p < lo) | (self.p > hi) | (self.v < -vmax) | (self.v > vmax)
-        if not changed.any():
+        nxt = K @ S
+        self.limited = 0
+        if self.limits is None:
+            S[:3] = nxt
             return 0
-        np.minimum(np.maximum(self.p, lo, out=self.p), hi, out=self.p)
-        np.minimum(np.maximum(self.v, -vmax, out=self.v), vmax, out=self.v)
-        self.a[changed] = 0.0
-        return int(np.count_nonzero(changed))
+        return self._limit(nxt, s)
+
+    def _limit(self, nxt: np.ndarray, s: float) -> int:
+        """Take the next state nxt (3, n) or the nearest one along the segment-end line that respects the limits."""
+        lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
+        p0, v0 = S[0], S[1]
+        # Quantities limited at the next state, all affine in the segment end: p, dp, v, dv, a, v + a s / 2.
+        y[0] = nxt[0]
+        np.subtract(nxt[0], p0, out=y[1])
+        y[2] = nxt[1]
+        np.subtract(nxt[1], v0, out=y[3])
+        y[4] = nxt[2]
+        # Velocity half a step ahead: a state at its velocity bound must not still accelerate outwards.
+        np.multiply(nxt[2], 0.5 * s, out=y[5])
+        y[5] += nxt[1]
+        lo[0], hi[0] = lim.lower, lim.upper
+        np.multiply(lim.vmax, s, out=hi[1])
+        np.negative(hi[1], out=lo[1])
+        np.maximum(lim.brake(p0 - lim.lower, s, neg=True, decel=BRAKE_DECEL), -lim.vmax, out=lo[2])
+        np.minimum(lim.brake(lim.upper - p0, s, decel=BRAKE_DECEL), lim.vmax, out=hi[2])
+        np.multiply(lim.amax, s, out=hi[3])
+        np.negative(hi[3], out=lo[3])
+        hi[4] = lim.amax
+        np.negative(hi[4], out=lo[4])
+        lo[5], hi[5] = lo[2], hi[2]
+        bad = ((y < lo) | (y > hi)).any(axis=0)
+        if not bad.any():
+            S[:3] = nxt
+            return 0
+        # Per bad joint: lambda in [0, 1] on the line from the keep-velocity end to the desired end.
+        K = self._K
+        idx = np.flatnonzero(bad)
+        dp1 = S[3, idx] - (p0[idx] + v0[idx] * self.T)
+        dv1 = S[4, idx] - v0[idx]
+        dnxt = np.outer(K[:, 3], dp1) + np.outer(K[:, 4], dv1)  # (3, k): next state per unit lambda
+        dy = np.stack([dnxt[0], dnxt[0], dnxt[1], dnxt[1], dnxt[2], dnxt[1] + 0.5 * s * dnxt[2]])
+        y0 = y[:, idx] - dy  # next-state quantities at lambda = 0
+        lam_hi, lam_lo = _interval(y0[:5], dy[:5], lo[:5, idx], hi[:5, idx])
+        # The look-ahead row only where it is compatible with the limits proper.
+        ahead_hi, ahead_lo = _interval(y0[5:], dy[5:], lo[5:, idx], hi[5:, idx])
+        both = np.maximum(lam_lo, ahead_lo) <= np.minimum(lam_hi, ahead_hi)
+        lam_lo = np.where(both, np.maximum(lam_lo, ahead_lo), lam_lo)
+        lam_hi = np.where(both, np.minimum(lam_hi, ahead_hi), lam_hi)
+        # A joint resting on its stop pins lambda from both sides; round-off may cross them by ~1e-16.
+        feasible = lam_lo <= lam_hi + LAMBDA_SLACK
+        lam = np.minimum(np.maximum(1.0, lam_lo), np.maximum(lam_hi, lam_lo))
+        lam[~feasible] = 0.0
+        p0_bad = p0[idx]  # fancy indexing copies: kept for the clamp below
+        S[:3] = nxt
+        S[:3, idx] -= dnxt * (1.0 - lam)
+        S[3, idx] -= dp1 * (1.0 - lam)
+        S[4, idx] -= dv1 * (1.0 - lam)
+        self.limited = int(idx.size)
+        if feasible.all():
+            return 0
+        return self._clamp(idx[~feasible], p0_bad[~feasible], s)
+
+    def _clamp(self, idx: np.ndarray, p0: np.ndarray, s: float) -> int:
+        """Last resort (breaks C2): clamp the state of joints idx (previous positions p0) into the limits."""
+        lim, S = self.limits, self._S
+        step = lim.vmax[idx] * s
+        lo_p = np.maximum(lim.lower[idx], p0 - step)
+        hi_p = np.minimum(lim.upper[idx], p0 + step)
+        S[0, idx] = np.minimum(np.maximum(S[0, idx], lo_p), hi_p)
+        S[1, idx] = np.minimum(np.maximum(S[1, idx], self._lo[2, idx]), self._hi[2, idx])
+        S[2, idx] = np.clip(S[2, idx], -lim.amax[idx], lim.amax[idx])
+        return int(idx.size)
+
+
+def _interval(y0: np.ndarray, dy: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the lambda interval [lam_lo, lam_hi] with lo <= y0 + lam dy <= hi in every row."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (lo - y0) / dy
+        b = (hi - y0) / dy
+    up = np.where(dy > 0, b, np.where(dy < 0, a, np.inf))
+    down = np.where(dy > 0, a, np.where(dy < 0, b, -np.inf))
+    # Rows that lambda does not move: feasible or not whatever lambda is.
+    stuck = (dy == 0) & ((y0 < lo) | (y0 > hi))
+    up = np.where(stuck, -np.inf, up)
+    return up.min(axis=0), down.max(axis=0)

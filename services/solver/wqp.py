@@ -27,26 +27,18 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.linalg import lapack
 
-from services.solver.algorithm import (
-    QP_BOUND_TOL,
-    Algorithm,
-    Solution,
-    clip,
-    count_active,
-    level_residuals,
-    level_value,
-    within,
-)
+from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
+from services.solver.cascade import CascadeQp
 from services.solver.qp import QpBackend
 
 
-class WeightedQp(Algorithm):
+class WeightedQp(CascadeQp):
     """One weighted QP over all levels.
 
     Args:
         backend: QP backend.
         level_weights: w_k per level (missing levels reuse the last weight).
-        eps: Tikhonov regularisation.
+        eps: Tikhonov regularisation (one objective: the first level's damping is used).
         shortcut: use the unconstrained optimum when it respects the bounds.
     """
 
@@ -59,12 +51,10 @@ class WeightedQp(Algorithm):
         eps: float | Sequence[float] = 1e-9,
         shortcut: bool = True,
     ):
-        super().__init__()
+        super().__init__(backend, eps, refine=False)
         if not level_weights or any(w <= 0 for w in level_weights):
             raise ValueError(f"level weights must be > 0, got {level_weights}")
-        self.backend = backend
         self.level_weights = tuple(float(w) for w in level_weights)
-        self.eps = level_value(eps, 0)  # one objective: the first level's damping
         self.shortcut = shortcut
 
     def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
@@ -75,7 +65,7 @@ class WeightedQp(Algorithm):
             w2 = self.level_weights[min(k, len(self.level_weights) - 1)] ** 2
             H += w2 * (A.T @ A)
             f -= w2 * (A.T @ b)
-        H.flat[:: n + 1] += self.eps
+        H.flat[:: n + 1] += self.level_eps(0)
         if self.shortcut:
             _c, x, info = lapack.dposv(H, -f)
             if info == 0 and within(x, lb, ub):

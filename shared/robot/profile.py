@@ -191,3 +191,15 @@ def _validate(prof: RobotProfile, path: Path) -> None:
     unknown = sorted(set(prof.arms_out) - set(joints))
     if unknown:
         raise ProfileError(f"{path}: [arms_out] names joints that are not controlled: {unknown}")
+
+
+def upper_arm_frame(profile: RobotProfile, side: str) -> str:
+    """Robot frame that plays the operator's upper arm on ``side`` (``[frames] <side>_upper_arm``).
+
+    Raises:
+        ProfileError: the profile does not name one (seed 004's mimicry needs it).
+    """
+    key = f"{side}_upper_arm"
+    if key not in profile.frames:
+        raise ProfileError(f"profile {profile.name}: [frames] lacks {key} (the link that plays the upper arm)")
+    return profile.frames[key]

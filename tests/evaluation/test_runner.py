@@ -72,7 +72,8 @@ def test_unreachable_offset_shows_up_as_that_offset(robot):
     """Elbow targets 5 cm above a reachable motion (wrists exact): the strict hierarchy keeps the wrists
     and misses each elbow by the part of the offset the arm cannot absorb around the wrist (measured
     3.32 cm mean, 4.77 cm max), never by more than the offset plus tracking error; the WQP gives
-    wrist accuracy away (0.31 cm mean) to come closer to the elbows (3.08 cm mean)."""
+    wrist accuracy away (0.54 cm mean) to come closer to the elbows (2.83 cm mean; with the acceleration
+    limits of the solver since issue 13: 0.31 / 3.08 cm before)."""
     off = {e: np.array([0.0, 0.0, 0.05]) for e in ("left_elbow", "right_elbow")}
     targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE), off)
     hqp = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
@@ -80,8 +81,8 @@ def test_unreachable_offset_shows_up_as_that_offset(robot):
     assert hqp["wrist_err_cm"]["mean"] < 0.02 and hqp["wrist_err_cm"]["max"] < 0.1, hqp["wrist_err_cm"]
     assert 3.0 < hqp["elbow_err_cm"]["mean"] < 3.6, hqp["elbow_err_cm"]
     assert hqp["elbow_err_cm"]["max"] <= 5.0 + 0.05, hqp["elbow_err_cm"]
-    assert 0.2 < wqp["wrist_err_cm"]["mean"] < 0.45, wqp["wrist_err_cm"]
-    assert hqp["elbow_err_cm"]["mean"] - 0.5 < wqp["elbow_err_cm"]["mean"] < hqp["elbow_err_cm"]["mean"] - 0.1
+    assert 0.4 < wqp["wrist_err_cm"]["mean"] < 0.7, wqp["wrist_err_cm"]
+    assert hqp["elbow_err_cm"]["mean"] - 0.7 < wqp["elbow_err_cm"]["mean"] < hqp["elbow_err_cm"]["mean"] - 0.3
 
 
 def test_wqp_weights_trade_elbow_against_wrist(robot):
@@ -95,3 +96,18 @@ def test_wqp_weights_trade_elbow_against_wrist(robot):
     }
     assert m[0.01]["elbow_err_cm"]["mean"] > m[1.0]["elbow_err_cm"]["mean"] + 0.5
     assert m[0.01]["wrist_err_cm"]["mean"] < m[1.0]["wrist_err_cm"]["mean"]
+
+
+def test_wrist_only_run_hides_the_elbows_from_the_solver_but_scores_them(robot):
+    """The solver gets wrists only; the errors are still against the full targets' elbows."""
+    from services.evaluation.runner import wrist_only_targets
+
+    targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE))
+    fed = wrist_only_targets(targets)
+    assert not any(t.targets["left_elbow"].valid for t in fed) and all(t.targets["left_wrist"].valid for t in fed)
+    full = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
+    wo_tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", wrist_only=True)
+    wo = trace_metrics(wo_tr, robot)
+    assert wo_tr.ref_ok["left_elbow"].all()  # scored on every tick
+    assert wo["wrist_err_cm"]["mean"] < 0.02  # the wrists are tracked as before
+    assert wo["elbow_err_cm"]["mean"] > 10 * full["elbow_err_cm"]["mean"]  # the elbows are not seen

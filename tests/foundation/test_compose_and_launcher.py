@@ -13,7 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from services.launcher.stack import COMPOSE_FILE, NETWORK_ENV, forget_state, load_stack, local_environment, select
+from services.launcher.stack import (
+    COMPOSE_FILE,
+    LOCAL_MODE,
+    NETWORK_ENV,
+    forget_state,
+    load_stack,
+    local_environment,
+    select,
+)
 from shared.paths import REPO_ROOT
 
 REPO = REPO_ROOT
@@ -60,7 +68,10 @@ def test_local_environment_only_moves_network_endpoints():
     for spec in stack.values():
         env = local_environment(spec, "tcp/127.0.0.1:5555")
         for k, v in spec.environment.items():
-            assert env[k] == ("tcp/127.0.0.1:5555" if k in NETWORK_ENV else v)
+            local = LOCAL_MODE if k == "MIMIC_MODE" else "tcp/127.0.0.1:5555"
+            assert env[k] == (local if k in NETWORK_ENV else v)
+    # In containers the services are clients of the router (their loopback is private).
+    assert {s.environment.get("MIMIC_MODE") for s in stack.values() if s.name != "zenoh"} == {"client"}
 
 
 def test_a_new_stack_forgets_the_retarget_calibration_state(tmp_path):

@@ -180,3 +180,26 @@ def test_structured_garbage_with_valid_envelope_is_rejected_cleanly(body):
         for v in msgpack.unpackb(msg.encode()).values():
             if isinstance(v, float):
                 assert math.isfinite(v)
+
+
+def test_task_targets_carry_optional_upper_arms_validated():
+    tt = make_targets()
+    q = np.array([0.0, 1.0, 0.0, 0.0])
+    tt.upper_arms = {"left": q}
+    back = TaskTargets.decode(tt.encode())
+    np.testing.assert_allclose(back.upper_arms["left"], q)
+    assert "right" not in back.upper_arms
+    assert TaskTargets.decode(make_targets().encode()).upper_arms == {}  # older publishers: absent
+    cases = [
+        ({"middle": [1.0, 0, 0, 0]}, "unknown_name"),
+        ({"left": [2.0, 0, 0, 0]}, "quaternion"),
+        ({"left": [1.0, 0, 0]}, "shape"),
+        ({"left": [float("nan"), 0, 0, 1.0]}, "nan"),
+        ([1], "type"),
+    ]
+    for bad, reason in cases:
+        d = msgpack.unpackb(make_targets().encode())
+        d["ua"] = bad
+        with pytest.raises(MessageError) as exc:
+            TaskTargets.decode(msgpack.packb(d))
+        assert exc.value.reason == reason, (bad, exc.value)

@@ -41,7 +41,7 @@ def test_amax_beside_vmax():
     ("edit", "message"),
     [
         (
-            lambda t: t.replace("max_joint_acceleration = 30.0", "max_joint_acceleration = -1.0"),
+            lambda t: re.sub(r"^max_joint_acceleration = .*$", "max_joint_acceleration = -1.0", t, flags=re.M),
             "max_joint_acceleration",
         ),
         (lambda t: re.sub(r"^max_joint_acceleration = .*$", "", t, flags=re.M), "max_joint_acceleration"),

@@ -182,3 +182,22 @@ def test_cli_errors_are_clear(tmp_path):
     assert ingest_cli.parse_endpoint("0.0.0.0:1") == ("0.0.0.0", 1)
     with pytest.raises(ValueError, match="port"):
         ingest_cli.parse_endpoint("host:abc")
+
+
+def test_publish_wrist_only_sends_hands_only_over_zenoh(router, tmp_path):
+    path = generate_demo_clips(tmp_path)[1]
+    session = "pubwrist"
+    got = Collector()
+    with open_session(bus_args(connect=[router], session=session)) as z:
+        sub = z.declare_subscriber(Keys(session).mocap_frame, got)
+        proc = subprocess.run(
+            [sys.executable, "-m", "services.cli", "publish", str(path), "--start", "1", "--end", "1.5", "--wrist-only",
+             "--connect", router, "--session", session, "--wait-subscriber", "10"],
+            cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"}, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert got.wait(10, 5.0)
+        sub.undeclare()
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["wrist_only"] is True
+    for _, f in got.items:
+        assert {"left_wrist", "right_wrist"} <= set(f.bones) <= {"left_wrist", "right_wrist", "left_hand", "right_hand"}

@@ -86,12 +86,13 @@ def test_velocities_are_consistent_with_positions_on_a_real_clip(clips, robot14,
 
 
 def test_default_elbow_targets_sit_at_the_robot_arm_lengths_on_real_clips(clips, robot14, workspace):
-    """Product defaults (swivel elbows): every valid elbow target is at the robot's upper-arm length
-    from its shoulder centre and its forearm length from the wrist target, so both are reachable,
-    unless bounded mode pulled it onto the workspace box; the wrist stays within the arm's reach."""
+    """Swivel elbows (the default, here with the box mapping): every valid elbow target is at the robot's
+    upper-arm length from its shoulder centre and its forearm length from the wrist target, so both are
+    reachable, unless bounded mode pulled it onto the workspace box; the wrist stays within the arm's
+    reach. (The default "reach" mapping publishes no box clamp at all: test_reach.py.)"""
     on_sphere = 0
     for name, clip in clips.items():
-        r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+        r = Retargeter(RetargetConfig(mode="bounded"), workspace=workspace, robot=robot14)
         for out in run(r, frames_of(clip)):
             for side, arm in r.arms.items():
                 t = elbow_of(side)

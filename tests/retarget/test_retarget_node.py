@@ -89,7 +89,7 @@ def test_node_retargets_every_frame_and_serves_calibration(router, robot14, work
         with pytest.raises(RuntimeError, match="lacks field"):
             query(client, keys.calibration, msgpack.packb({"rest": {}}))
         cfg = msgpack.unpackb(query(client, keys.config("retarget")))
-        assert cfg["config"]["mode"] == "bounded" and set(TARGET_NAMES) <= set(cfg["workspace"])
+        assert cfg["config"]["mode"] == RetargetConfig().mode and set(TARGET_NAMES) <= set(cfg["workspace"])
         client.close()
 
 

@@ -15,7 +15,8 @@ from shared.targets import TARGET_NAMES
 
 #: These tests check seed 000's eqs. (1)-(4) as written: per-axis elbows, eq. 4 against the rest pose.
 #: The product defaults (swivel elbows, forearm-relative orientation) are covered in test_elbow.py.
-PAPER = {"elbow_placement": "mapped", "orientation_reference": "rest"}
+#: The per-axis box mapping ("bounded") is what eqs. 1-3 describe; the default "reach" mode is in test_reach.py.
+PAPER = {"mode": "bounded", "elbow_placement": "mapped", "orientation_reference": "rest"}
 
 
 @pytest.fixture()

@@ -61,7 +61,9 @@ def test_arms_only_robot_runs_the_retarget_path_unchanged(arms_only, tmp_path, m
         assert abs(np.linalg.norm(e - arm.centre) - arm.upper) < 0.02
         assert arm.reach[0] < np.linalg.norm(rest[wrist_of(side)][0] - arm.centre) < arm.reach[1] + 0.02
 
-    r = Retargeter(RetargetConfig(robot=str(arms_only.source), samples=2000), workspace=ws, robot=rm)
+    r = Retargeter(
+        RetargetConfig(robot=str(arms_only.source), samples=2000, reach_samples=20_000), workspace=ws, robot=rm
+    )
     solver = SolverCore(rm, SolverConfig())
     dt, out, cmd, t = solver.config.dt, None, None, 0.0
     for k in range(60):

@@ -191,24 +191,31 @@ class _FailingBackend(DaqpBackend):
         return QpResult(res.x * np.nan, False, res.iters, "injected failure")
 
 
-def test_failed_solve_holds_previous_safe_position(robot17):
+def test_failed_solve_brakes_within_the_limits(robot17):
     robot = robot17
     core = SolverCore(robot, SolverConfig(algo="hqp-nullspace", qp="daqp", smoothing=False))
-    core.step(targets_from_q(robot, robot.q_rest + 0.1), None, 0.0)
+    for k in range(20):
+        cmd = core.step(targets_from_q(robot, robot.q_rest + 0.3, k, k * DT), None, k * DT)
+    qd_before = cmd.qd.copy()
+    assert np.abs(qd_before).max() > 0.1  # moving when the QP starts failing
     core.algorithm.backend = _FailingBackend()
     core.algorithm.shortcut = False  # force the QP path
-    q_before = core.q_out.copy()
-    cmd = core.step(targets_from_q(robot, robot.q_rest + 0.3, 1, DT), None, DT)
-    assert cmd.status == "failed"
-    assert "injected failure" in cmd.reason
-    np.testing.assert_array_equal(cmd.q, q_before)
-    np.testing.assert_array_equal(cmd.qd, 0.0)
-    assert core.counts["failed"] == 1
+    for k in range(20, 60):
+        prev = cmd
+        cmd = core.step(targets_from_q(robot, robot.q_rest + 0.3, k, k * DT), None, k * DT)
+        assert cmd.status == "failed"
+        assert "injected failure" in cmd.reason
+        # Braking: never faster than before, never more than a_max dt of change per tick.
+        assert np.all(np.abs(cmd.qd) <= np.abs(prev.qd) + 1e-12)
+        assert np.all(np.abs(cmd.qd - prev.qd) <= robot.amax * DT + 1e-9)
+        np.testing.assert_allclose(cmd.q, prev.q + cmd.qd * DT, atol=1e-12)
+    np.testing.assert_array_equal(cmd.qd, 0.0)  # stopped
+    assert core.counts["failed"] == 40
 
 
 def test_resync_when_robot_and_command_diverge(robot17):
     robot = robot17
-    core = SolverCore(robot, SolverConfig(resync_threshold=0.2))
+    core = SolverCore(robot, SolverConfig(resync_threshold=0.2, closed_loop=True))
     core.step(targets_from_q(robot, robot.q_rest), None, 0.0)
     far = robot.clip(robot.q_rest + 0.5)
     cmd = core.step(None, far, DT)

@@ -1,10 +1,11 @@
-"""Algorithm registry: every solver selectable by name."""
+"""Every solver algorithm by name: ``make_algorithm("hqp-nullspace", "daqp", damping)``."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from services.solver.algorithm import Algorithm
+from services.solver.base import Algorithm
+from services.solver.clik_mimicry import ClikMimicry
 from services.solver.clik_nullspace import ClikNullspace
 from services.solver.dls import DampedLeastSquares
 from services.solver.hqp_nullspace import HqpNullspace
@@ -17,6 +18,7 @@ ALGORITHMS: dict[str, Callable[[str, tuple[float, ...]], Algorithm]] = {
     "hqp-original": lambda qp, damping: HqpOriginal(make_backend(qp), eps=damping),
     "wqp": lambda qp, damping: WeightedQp(make_backend(qp), eps=damping),
     "clik-nullspace": lambda qp, damping: ClikNullspace(damping=damping[0]),
+    "clik-mimicry": lambda qp, damping: ClikMimicry(damping=damping[0]),
     "dls": lambda qp, damping: DampedLeastSquares(damping=max(damping[0], 1e-6)),
 }
 #: Algorithms that call a QP backend (the others ignore ``--qp``).

@@ -1,0 +1,131 @@
+"""mink's weighted ``solve_ik`` as an evaluation algorithm ("mink"): the peer users would pick instead.
+
+mink is the differential IK that GMR (the retargeter most users pick) is built on. Here it gets the
+same targets as our solvers, through the same :class:`~services.solver.targets.TargetTracker` (each
+tick: the newest frame, extrapolated with its velocity to the instant the command is for), at the
+same rate, on the MuJoCo model of the same robot, with the equivalent weighted problem: wrist
+FrameTasks (position cost 1, orientation cost from :class:`SolverConfig`), elbow position-only
+FrameTasks, a posture task towards the rest pose, and mink's ConfigurationLimit (with the profile's
+limit margin) and VelocityLimit (the profile's joint speed cap). Its commands are scored exactly
+like ours.
+
+mink is an optional dependency (the ``eval`` and ``dev`` extras); :func:`require_mink` turns its
+absence into a one-line error.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from services.solver.core import SolverConfig
+from services.solver.targets import TargetTracker
+from shared.messages import TARGET_NAMES, Header, JointCommand, TaskTargets
+from shared.robot.pinocchio_model import RobotModel
+
+#: Algorithm name of the peer in ``mimic eval --algos``.
+MINK = "mink"
+
+
+class MinkMissingError(RuntimeError):
+    """mink (or its QP solver) is not installed."""
+
+
+def require_mink():
+    """Import mink, or raise :class:`MinkMissingError` with the install hint."""
+    try:
+        import mink
+    except ImportError as exc:
+        hint = "install with: pip install -e '.[eval]'"
+        raise MinkMissingError(f"--algos mink needs the mink package ({exc}); {hint}") from None
+    return mink
+
+
+class MinkPeer:
+    """``step(targets, measured_q, t) -> JointCommand`` like :class:`SolverCore`, solved by mink.
+
+    Args:
+        robot: reduced Pinocchio model whose joints are commanded (their order is the command's).
+        rate: control rate [Hz].
+        solver: qpsolvers backend name for ``mink.solve_ik``.
+    """
+
+    def __init__(self, robot: RobotModel, rate: float = 500.0, solver: str = "daqp"):
+        mink = require_mink()
+        from shared.robot.mujoco_model import build_mujoco_robot
+
+        self.mink = mink
+        self.robot = robot
+        self.dt = 1.0 / rate
+        self.solver = solver
+        cfg = SolverConfig()
+        #: the solver settings the tracker and the eval read (as :class:`SolverCore` has them)
+        self.config = cfg
+        self.counts: dict[str, int] = {}
+        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        mj = build_mujoco_robot(robot.profile, joint_names=robot.joint_names)
+        self.mj = mj
+        model = mj.model
+        self.configuration = mink.Configuration(model)
+        self.configuration.update(mj.data.qpos.copy())
+        prof = robot.profile
+        base = mj.data.body(mj.body_ids["__base__"])
+        self.T_world_base = mink.SE3.from_rotation_and_translation(
+            mink.SO3.from_matrix(base.xmat.reshape(3, 3).copy()), base.xpos.copy()
+        )
+        self.tasks = {
+            name: mink.FrameTask(
+                prof.frames[name],
+                "body",
+                position_cost=cfg.wrist_position_cost if name.endswith("wrist") else cfg.elbow_cost,
+                orientation_cost=cfg.wrist_orientation_cost if name.endswith("wrist") else 0.0,
+            )
+            for name in TARGET_NAMES
+        }
+        self.posture = mink.PostureTask(model, cost=cfg.posture_cost)
+        self.posture.set_target_from_configuration(self.configuration)
+        # the controlled joints' speed caps; the others (legs, held by the posture task) get the lowest
+        vmax = dict.fromkeys((model.joint(j).name for j in range(model.njnt)), float(robot.vmax.min()))
+        vmax |= {n: float(v) for n, v in zip(robot.joint_names, robot.vmax)}
+        self.limits = [
+            mink.ConfigurationLimit(model, min_distance_from_limits=float(prof.limit_margin)),
+            mink.VelocityLimit(model, vmax),
+        ]
+        self.qpos_idx = mj.qpos_idx
+        self.dof_idx = mj.dof_idx
+        self.q_rest = robot.q_rest.copy()
+
+    def step(self, targets: TaskTargets | None, measured_q: np.ndarray | None, t: float) -> JointCommand:
+        """One tick at time t [s]: the tasks take the tracker's targets at t + dt, mink solves, q integrates."""
+        t0 = time.perf_counter()
+        mink = self.mink
+        if targets is not None:
+            self.tracker.update(targets, t)
+        conf = self.configuration
+        status = "init"
+        qd_all = np.zeros(conf.model.nv)
+        if self.tracker.started:
+            for name, task in self.tasks.items():
+                s = self.tracker.sample(name, t + self.dt)
+                if s is None:
+                    continue
+                T = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(s.R), s.p)
+                task.set_target(self.T_world_base @ T)
+            qd_all = mink.solve_ik(conf, [*self.tasks.values(), self.posture], self.dt, self.solver, limits=self.limits)
+            conf.integrate_inplace(qd_all, self.dt)
+            status = "ok"
+        q = conf.q[self.qpos_idx].copy()
+        qd = qd_all[self.dof_idx].copy()
+        return JointCommand(
+            hdr=self.tracker.hdr if self.tracker.started else Header(0, 0.0, 0),
+            solver_id="eval",
+            algo=MINK,
+            joints=list(self.robot.joint_names),
+            q=q,
+            qd=qd,
+            residuals=[],
+            solve_ms=(time.perf_counter() - t0) * 1e3,
+            status=status,
+            t_cmd=t,
+        )

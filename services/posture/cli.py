@@ -1,0 +1,192 @@
+"""``mimic posture train|bench|gate``: the learned posture policy (seed 004 section 3).
+
+    mimic posture train CLIPS... --out FILE [--relabel-rounds N] --json REPORT [--plot PNG]
+    mimic posture bench --policy FILE [--ticks N]                # = mimic bench posture: inference cost, JSON
+    mimic posture gate --policy FILE CLIP                        # gate in and out of distribution, JSON
+
+``train`` splits the clips by clip (sorted by name, every ``--holdout-every``-th held out for the
+report), runs Algorithm 1 against plain BC at equal demonstration time and writes the relabelled
+policy (numpy weights + metadata), the report JSON and the learning-curve PNG.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import logging
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from shared.targets import SIDES
+
+log = logging.getLogger("mimic.posture")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="posture_command", metavar="ACTION", required=True)
+    t = sub.add_parser("train", help="train the policy (BC + online relabelling) on clips; needs mimic[train]")
+    t.add_argument("clips", nargs="+", help="BVH/C3D clips (split by clip into train and held-out test)")
+    t.add_argument("--out", required=True, help="model file to write (.npz)")
+    t.add_argument("--json", required=True, help="training report JSON")
+    t.add_argument("--plot", default=None, help="learning-curve PNG (default: next to --json, *_curve.png)")
+    t.add_argument("--relabel-rounds", type=int, default=2, help="Algorithm 1 rounds after pre-training")
+    t.add_argument("--holdout-every", type=int, default=4, help="every k-th clip (sorted by name) is held out")
+    t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
+    t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
+    t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
+    t.add_argument("--hidden", type=int, default=64, help="hidden units per layer (2 hidden layers)")
+    t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
+    t.add_argument("--seed", type=int, default=0, help="seed of everything random")
+    t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
+    from services.posture import bench
+
+    bench.add_arguments(sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON"))
+    g = sub.add_parser("gate", help="gate on a clip's states and on out-of-distribution targets, JSON")
+    g.add_argument("clip", help="held-out clip")
+    g.add_argument("--policy", required=True, help="model file")
+    g.add_argument("--json", default=None, help="also write the JSON here")
+
+
+def split_clips(clips: list[str], every: int) -> tuple[list[str], list[str]]:
+    """(train, test) by clip: sorted by file name, every ``every``-th (1-based) held out."""
+    paths = sorted(clips, key=lambda p: Path(p).name)
+    if every < 2:
+        return paths, []
+    test = [p for i, p in enumerate(paths) if i % every == every - 1]
+    return [p for p in paths if p not in test], test
+
+
+def gate_thresholds(weights: dict, meta: dict, data) -> dict:
+    """Per side: 2x the 99th percentile of |x_dv - p| over the training states (at least 3 cm)."""
+    from services.posture.features import decoder_input
+    from services.posture.policy import _layers, mlp
+
+    out = {}
+    stats = {}
+    for i, s in enumerate(SIDES):
+        S = data.S[i]
+        a = mlp(_layers(weights, f"{s}.enc"), S)
+        z = mlp(_layers(weights, f"{s}.dec"), decoder_input(a, S))
+        from services.posture.features import ArmFrame, virtual_target
+
+        arm = ArmFrame(np.asarray(meta["arms"][s]["centre"]), meta["arms"][s]["upper"], meta["arms"][s]["fore"])
+        gap = np.linalg.norm(virtual_target(arm, z) - S[:, 4:7], axis=1)
+        p99 = float(np.percentile(gap, 99))
+        out[s] = max(GATE_FACTOR * p99, GATE_MIN)
+        stats[s] = {"gap_p50_m": float(np.median(gap)), "gap_p99_m": p99, "threshold_m": out[s]}
+    return {"gate_threshold": out, "gate_stats": stats}
+
+
+#: Gate threshold: this factor times the 99th percentile of the training gaps ...
+GATE_FACTOR = 2.0
+#: ... and never below this [m].
+GATE_MIN = 0.03
+
+
+def _train(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, STATE_LAYOUT
+    from services.posture.policy import save_policy
+    from services.posture.relabel import ExperimentConfig, relabel_experiment
+    from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip
+    from services.posture.train import TrainConfig, require_torch
+    from shared.robot.pinocchio_model import build_robot_model
+
+    torch = require_torch()
+    t_start = time.perf_counter()
+    np.random.seed(args.seed)
+    train_paths, test_paths = split_clips(args.clips, args.holdout_every)
+    if not train_paths:
+        raise SystemExit("no training clips left after the hold-out")
+    robot = build_robot_model(with_waist=False)
+    arms = ArmsModel(robot)
+    clips = {}
+    for p in tqdm(train_paths + test_paths, desc="retarget", unit="clip", file=sys.stderr):
+        clips[p] = prepare_clip(p, robot)
+    train = [clips[p] for p in train_paths]
+    test = [clips[p] for p in test_paths] or train[-1:]
+    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads)
+    rcfg = RolloutConfig(rate=args.rate)
+    ecfg = ExperimentConfig(chunk_s=args.chunk_s, pretrain_fraction=args.pretrain_fraction,
+                            rounds=args.relabel_rounds, eps=args.eps, seed=args.seed)  # fmt: skip
+    base_meta = {
+        "robot": robot.profile.name,
+        "sides": list(SIDES),
+        "state_layout": list(STATE_LAYOUT),
+        "action_layout": list(ACTION_LAYOUT),
+        "action_joints": {s: [robot.joint_names[j] for j in arms.act[i]] for i, s in enumerate(SIDES)},
+        "arm_joints": {s: [robot.joint_names[j] for j in arms.arm[i]] for i, s in enumerate(SIDES)},
+        "arm_state_layout": list(ARM_STATE_LAYOUT),
+        "arms": {s: arms.frames[i].to_dict() for i, s in enumerate(SIDES)},
+        "q_ref": {s: [float(x) for x in arms.Q_ref[i]] for i, s in enumerate(SIDES)},
+        "network": {
+            "encoder": [14, tcfg.hidden, tcfg.hidden, 3],
+            "decoder": [17, tcfg.hidden, tcfg.hidden, 6],
+            "activation": "tanh (input and hidden layers), linear output",
+        },
+        "train_clips": [Path(p).name for p in train_paths],
+        "test_clips": [Path(p).name for p in test_paths],
+        "clips_sha256": {Path(p).name: hashlib.sha256(Path(p).read_bytes()).hexdigest()[:16] for p in train_paths},
+        "retarget": POSTURE_RETARGET,
+        "rollout": asdict(rcfg),
+        "train": asdict(tcfg),
+        "experiment": asdict(ecfg),
+        "torch": torch.__version__,
+    }
+
+    def make_meta(weights, data):
+        meta = dict(base_meta)
+        meta.update(gate_thresholds(weights, meta, data))
+        return meta
+
+    def epoch_done(side: str, epoch: int, losses: tuple[float, float]) -> None:
+        if (epoch + 1) % 10 == 0 or epoch + 1 == tcfg.epochs:
+            log.info(
+                "  fit %s: epoch %d/%d, losses %.3g (action) %.3g (decoder)", side, epoch + 1, tcfg.epochs, *losses
+            )
+
+    weights, report, data = relabel_experiment(
+        arms, train, test, make_meta, ecfg, tcfg, rcfg, progress=lambda m: log.info("%s", m), fit_progress=epoch_done
+    )
+    meta = make_meta(weights, data)
+    meta["samples"] = len(data)
+    meta["train_wall_s"] = time.perf_counter() - t_start
+    out = save_policy(args.out, weights, meta)
+    report["model"] = {"path": str(out), "bytes": out.stat().st_size, "gate": meta["gate_stats"]}
+    report["train_clips"], report["test_clips"] = meta["train_clips"], meta["test_clips"]
+    report["wall_s"] = meta["train_wall_s"]
+    jpath = Path(args.json)
+    jpath.parent.mkdir(parents=True, exist_ok=True)
+    jpath.write_text(json.dumps(report, indent=2))
+    plot = Path(args.plot) if args.plot else jpath.with_name(jpath.stem + "_curve.png")
+    from services.posture.plots import learning_curve
+
+    learning_curve(report, plot)
+    summary = {k: report[k] for k in ("relabel", "bc", "expert_test", "wall_s")}
+    summary["model"], summary["plot"] = str(out), str(plot)
+    sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+    return 0
+
+
+def _gate(args: argparse.Namespace) -> int:
+    from services.posture.gate_check import gate_report
+
+    out = gate_report(args.clip, args.policy)
+    text = json.dumps(out, indent=2)
+    if args.json:
+        Path(args.json).write_text(text)
+    sys.stdout.write(text + "\n")
+    return 0
+
+
+def main(args: argparse.Namespace) -> int:
+    from services.posture import bench
+
+    return {"train": _train, "bench": bench.main, "gate": _gate}[args.posture_command](args)

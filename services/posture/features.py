@@ -1,0 +1,99 @@
+"""State, action and operator-arm layouts of the posture policy (seed 004 section 3.1).
+
+Per arm (the policy is applied to each arm with that arm's own network):
+
+- state ``s = (Q, p, q)`` (14,): the tracked hand pose, quaternion ``Q`` (4,) wxyz and position
+  ``p`` (3,) [m] in the robot base frame (the wrist target), and the arm's 7 joint angles ``q`` [rad]
+  in profile order. ``Q`` is sign-fixed against the robot's rest wrist orientation (``Q·Q_rest >= 0``),
+  which puts the quaternion's double-cover seam 180° away from where hands go.
+- action ``q̇₀`` (3,) [rad/s] on the joints that move the upper-arm link: the shoulder pitch, roll and
+  yaw. Seed 004's xMate3 has 4 (its link 4 follows joints 1-4); on the G1 the upper-arm link follows
+  the three shoulder joints, and the mimicry gradient ``-η ∇H`` is zero on every other arm joint.
+- decoder input ``(q̇₀, q, x_d)`` (17,): action, joints, and the target pose ``x_d = (Q, p)``.
+- operator arm state (6,): unit directions of the operator's upper arm ``u`` and forearm ``f`` on the
+  robot's proportions (robot base frame). The virtual target (the master's forward kinematics) is
+  ``x_dv = c + L_u u + L_f f`` with the robot's shoulder centre c and segment lengths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from shared.robot.pinocchio_model import RobotModel
+
+STATE_DIM = 14
+ACTION_DIM = 3
+DECODER_DIM = ACTION_DIM + 7 + 7
+ARM_STATE_DIM = 6
+#: Largest |q̇₀| per joint [rad/s], for the expert's labels and the policy's actions alike: seed 004
+#: leaves "occasional wrong outputs" of the network to future filtering; a bound keeps any output a
+#: gentle pull (the joints' own limit is 4 rad/s), and the expert's saturated labels teach the same.
+ACTION_LIMIT = 2.0
+#: State entries by name (for the model file's metadata).
+STATE_LAYOUT = ("Qw", "Qx", "Qy", "Qz", "px", "py", "pz", *(f"q{i}" for i in range(7)))
+ACTION_LAYOUT = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw")
+ARM_STATE_LAYOUT = ("ux", "uy", "uz", "fx", "fy", "fz")
+
+
+def arm_joints(robot: RobotModel, side: str) -> np.ndarray:
+    """Indices (7,) of the side's arm joints in the model's joint order (profile ``[arms.<side>]``)."""
+    return np.array([robot.joint_names.index(n) for n in robot.profile.arms[side].joints])
+
+
+def action_joints(robot: RobotModel, side: str) -> np.ndarray:
+    """Indices (3,) of the joints the action drives: the profile's shoulder joints (before the elbow)."""
+    shoulder = robot.profile.arms[side].shoulder
+    if len(shoulder) != ACTION_DIM:
+        raise ValueError(
+            f"{robot.profile.name}: {side} arm has {len(shoulder)} shoulder joints, the policy {ACTION_DIM}"
+        )
+    return np.array([robot.joint_names.index(n) for n in shoulder])
+
+
+@dataclass(frozen=True)
+class ArmFrame:
+    """Robot constants of one arm for the operator arm state: shoulder centre (3,) [m], lengths [m]."""
+
+    centre: np.ndarray
+    upper: float
+    fore: float
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["centre"] = [float(x) for x in self.centre]
+        return d
+
+
+def canonical_quat(Q: np.ndarray, Q_ref: np.ndarray) -> np.ndarray:
+    """Quaternion(s) (..., 4) with the sign that makes the dot product with Q_ref (4,) non-negative."""
+    Q = np.asarray(Q, dtype=float)
+    s = np.where((Q @ Q_ref) < 0.0, -1.0, 1.0)
+    return Q * s[..., None]
+
+
+def state(Q: np.ndarray, p: np.ndarray, q_arm: np.ndarray, Q_ref: np.ndarray) -> np.ndarray:
+    """s (14,) from Q (4,), p (3,) [m], q_arm (7,) [rad]."""
+    return np.concatenate([canonical_quat(Q, Q_ref), p, q_arm])
+
+
+def decoder_input(action: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(…, 17) decoder input ``(q̇₀, q, x_d)`` from actions (…, 3) and states (…, 14)."""
+    return np.concatenate([action, s[..., 7:14], s[..., 0:7]], axis=-1)
+
+
+def arm_state(arm: ArmFrame, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
+    """Operator arm state (…, 6): upper-arm and forearm unit directions from elbow/wrist targets (…, 3)."""
+    u = elbow - arm.centre
+    f = wrist - elbow
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    f = f / np.linalg.norm(f, axis=-1, keepdims=True)
+    return np.concatenate([u, f], axis=-1)
+
+
+def virtual_target(arm: ArmFrame, z: np.ndarray) -> np.ndarray:
+    """x_dv (…, 3) [m]: the master's forward kinematics of an arm state (…, 6) (directions renormalised)."""
+    u = z[..., :3] / np.maximum(np.linalg.norm(z[..., :3], axis=-1, keepdims=True), 1e-9)
+    f = z[..., 3:6] / np.maximum(np.linalg.norm(z[..., 3:6], axis=-1, keepdims=True), 1e-9)
+    return arm.centre + arm.upper * u + arm.fore * f

@@ -1,0 +1,200 @@
+"""Training of the posture policy (PyTorch, CPU; optional extra ``mimic[train]``).
+
+- :func:`fit`: behaviour cloning, eq. (7), of the encoder ``s -> q̇₀`` on expert labels, jointly with
+  the decoder ``(π(s), q, x_d) -> operator arm state`` (MSE on the normalised arm state), per arm.
+- :func:`export`: weights with the normalisation folded in, for :mod:`.policy` (numpy only).
+- :func:`relabel_experiment`: Algorithm 1 (online relabelling) against plain BC at equal
+  demonstration time, evaluated in closed loop on held-out clips (seed 004 Fig. 6).
+
+Everything is seeded (numpy, torch, chunk order), torch runs on ``threads`` CPU threads.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from services.posture.features import ACTION_DIM, ARM_STATE_DIM, DECODER_DIM, STATE_DIM
+from shared.targets import SIDES
+
+log = logging.getLogger("mimic.posture")
+
+TORCH_VERSION = "2.13.0"
+#: Fewest labelled samples per arm worth fitting.
+MIN_SAMPLES = 32
+
+
+def require_torch():
+    """The torch module, or SystemExit with how to get it (training only; inference is numpy)."""
+    try:
+        import torch
+    except ImportError:
+        raise SystemExit(
+            f"training the posture policy needs PyTorch: pip install 'mimic[train]' (torch=={TORCH_VERSION})"
+        ) from None
+    return torch
+
+
+@dataclass
+class TrainConfig:
+    """Network and optimiser settings.
+
+    Attributes:
+        hidden: units of each of the two hidden layers of encoder and decoder.
+        epochs: passes over the data. batch: minibatch size. lr: Adam step size.
+        decoder_weight: weight of the decoder loss against eq. (7)'s action loss.
+        seed: torch/numpy seed. threads: torch CPU threads.
+    """
+
+    hidden: int = 64
+    epochs: int = 40
+    batch: int = 256
+    lr: float = 3e-3
+    decoder_weight: float = 1.0
+    seed: int = 0
+    threads: int = 1
+
+
+@dataclass
+class Dataset:
+    """Per arm side: states (N, 14), expert actions (N, 3), operator arm states (N, 6)."""
+
+    S: list[np.ndarray]
+    A: list[np.ndarray]
+    Z: list[np.ndarray]
+
+    @classmethod
+    def empty(cls) -> Dataset:
+        return cls([np.zeros((0, STATE_DIM))] * 2, [np.zeros((0, ACTION_DIM))] * 2, [np.zeros((0, ARM_STATE_DIM))] * 2)
+
+    def __len__(self) -> int:
+        return sum(len(s) for s in self.S)
+
+    def add(self, S, A, Z) -> Dataset:
+        """A new dataset with per-side arrays appended (D ← D ∪ D_E)."""
+        return Dataset([np.r_[self.S[i], S[i]] for i in range(2)], [np.r_[self.A[i], A[i]] for i in range(2)],
+                       [np.r_[self.Z[i], Z[i]] for i in range(2)])  # fmt: skip
+
+
+def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
+    """Labelled samples of rollouts (ticks with an expert label).
+
+    Args:
+        only: "all" keeps every labelled tick; "disagree" keeps ticks whose policy action differs from
+            the expert's by ``||a - â||² >= eps`` (Algorithm 1, line 6).
+    """
+    S, A, Z = [[], []], [[], []], [[], []]
+    for r in rollouts:
+        if not len(r.S):
+            continue
+        for i in range(2):
+            m = r.label_ok[:, i].copy()
+            if only == "disagree":
+                m &= ((r.A[:, i] - r.A_pi[:, i]) ** 2).sum(1) >= eps
+            S[i].append(r.S[m, i])
+            A[i].append(r.A[m, i])
+            Z[i].append(r.Z[m, i])
+    cat = [lambda x, d=d: np.concatenate(x) if x else np.zeros((0, d)) for d in (STATE_DIM, ACTION_DIM, ARM_STATE_DIM)]
+    return Dataset([cat[0](S[i]) for i in range(2)], [cat[1](A[i]) for i in range(2)], [cat[2](Z[i]) for i in range(2)])
+
+
+def _net(torch, n_in: int, hidden: int, n_out: int):
+    nn = torch.nn
+    # Seed 004: tanh on the input and hidden layers, linear output.
+    return nn.Sequential(
+        nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(), nn.Linear(hidden, n_out)
+    )
+
+
+def _norm(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mu = x.mean(0)
+    sd = x.std(0)
+    return mu, np.where(sd < 1e-6, 1.0, sd)
+
+
+def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tuple[dict[str, np.ndarray], dict]:
+    """Train encoder and decoder of both arms; returns (exported weights, training report).
+
+    Args:
+        progress: optional callable(side, epoch, loss) for progress display.
+    """
+    torch = require_torch()
+    cfg = config or TrainConfig()
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    weights: dict[str, np.ndarray] = {}
+    report = {"config": asdict(cfg), "sides": {}}
+    for i, side in enumerate(SIDES):
+        S, A, Z = data.S[i], data.A[i], data.Z[i]
+        if len(S) < MIN_SAMPLES:
+            raise ValueError(f"{side}: {len(S)} labelled samples, need at least {MIN_SAMPLES}")
+        t0 = time.perf_counter()
+        Din = np.concatenate([A, S[:, 7:14], S[:, 0:7]], axis=1)
+        ns, na, nd, nz = _norm(S), _norm(A), _norm(Din), _norm(Z)
+        T = {k: torch.tensor(v, dtype=torch.float32) for k, v in
+             {"S": (S - ns[0]) / ns[1], "A": (A - na[0]) / na[1], "Z": (Z - nz[0]) / nz[1]}.items()}  # fmt: skip
+        q_xd = torch.tensor(np.concatenate([S[:, 7:14], S[:, 0:7]], axis=1), dtype=torch.float32)
+        nd_mu = torch.tensor(nd[0], dtype=torch.float32)
+        nd_sd = torch.tensor(nd[1], dtype=torch.float32)
+        na_mu = torch.tensor(na[0], dtype=torch.float32)
+        na_sd = torch.tensor(na[1], dtype=torch.float32)
+        gen = torch.Generator().manual_seed(cfg.seed + i)
+        enc = _net(torch, STATE_DIM, cfg.hidden, ACTION_DIM)
+        dec = _net(torch, DECODER_DIM, cfg.hidden, ARM_STATE_DIM)
+        opt = torch.optim.Adam([*enc.parameters(), *dec.parameters()], lr=cfg.lr)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
+        curve = []
+        n = len(S)
+        for epoch in range(cfg.epochs):
+            perm = torch.randperm(n, generator=gen)
+            tot_a = tot_z = 0.0
+            for j in range(0, n, cfg.batch):
+                idx = perm[j : j + cfg.batch]
+                a_n = enc(T["S"][idx])
+                loss_a = ((a_n - T["A"][idx]) ** 2).mean()  # eq. (7)
+                a = a_n * na_sd + na_mu  # the decoder sees the encoder's action in physical units
+                d_in = (torch.cat([a, q_xd[idx]], dim=1) - nd_mu) / nd_sd
+                loss_z = ((dec(d_in) - T["Z"][idx]) ** 2).mean()
+                loss = loss_a + cfg.decoder_weight * loss_z
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                tot_a += float(loss_a.detach()) * len(idx)
+                tot_z += float(loss_z.detach()) * len(idx)
+            sched.step()
+            curve.append((tot_a / n, tot_z / n))
+            if progress is not None:
+                progress(side, epoch, curve[-1])
+        weights.update(_export(torch, f"{side}.enc", enc, ns, na))
+        weights.update(_export(torch, f"{side}.dec", dec, nd, nz))
+        report["sides"][side] = {
+            "samples": int(n),
+            "train_s": time.perf_counter() - t0,
+            "action_mse_norm": curve[-1][0],
+            "decoder_mse_norm": curve[-1][1],
+            "curve": [[float(a), float(z)] for a, z in curve],
+        }
+    return weights, report
+
+
+def _export(torch, prefix: str, net, n_in, n_out) -> dict[str, np.ndarray]:
+    """Linear layers of ``net`` as numpy (in, out) matrices, input/output normalisation folded in."""
+    lin = [m for m in net if isinstance(m, torch.nn.Linear)]
+    Ws = [m.weight.detach().double().numpy().T.copy() for m in lin]
+    bs = [m.bias.detach().double().numpy().copy() for m in lin]
+    mu, sd = n_in
+    # x_n = (x - mu) / sd:  x_n W + b = x (W / sd[:, None]) + (b - (mu / sd) W)
+    bs[0] = bs[0] - (mu / sd) @ Ws[0]
+    Ws[0] = Ws[0] / sd[:, None]
+    mu_o, sd_o = n_out
+    # y = y_n sd + mu
+    Ws[-1] = Ws[-1] * sd_o[None, :]
+    bs[-1] = bs[-1] * sd_o + mu_o
+    out = {}
+    for k, (W, b) in enumerate(zip(Ws, bs)):
+        out[f"{prefix}.W{k}"] = W
+        out[f"{prefix}.b{k}"] = b
+    return out

@@ -1,0 +1,117 @@
+"""Joint bounds of one solver step: position, velocity and acceleration limits as a box on qd.
+
+Every QP level gets the same box ``lb <= qd <= ub`` (n,) [rad/s] for a step of
+``dt`` [s] (the real time since the last step). It intersects, per joint:
+
+* acceleration: ``|qd - qd_prev| <= a_max dt``;
+* deceleration-aware position limits: after moving at qd for dt the joint must
+  still be able to stop at a_max before its limit, ``qd dt + qd^2 / (2 a_max) <=
+  distance``, i.e. ``qd <= a_max (sqrt(dt^2 + 2 distance / a_max) - dt)``: about
+  ``sqrt(2 a_max distance)`` far from the limit and ``distance / dt`` (the step
+  cannot pass it) next to it. The same braking bound applies to an optional
+  window around the measured joints (``window``): the command may not run away
+  from a blocked arm by more than the window's half width;
+* velocity: ``|qd| <= vmax``.
+
+The terms are intersected in order of precedence (window, acceleration,
+position, velocity): where two cross, the later one wins and the box collapses
+onto its nearest edge. Velocity and position limits therefore always hold; the
+braking bound is consistent from one step to the next for any sequence of dt
+(decelerating at a_max keeps it satisfied), so acceleration only gives way after
+an outside jump (a reset while moving). A window that moves against the command
+(the robot pushed back) gives way to the acceleration limit: the command brakes
+at a_max instead of jumping back into it.
+
+General inequality rows (e.g. velocity dampers on distances, ``G qd <= h``) are
+not boxes: they would join as extra rows of every level's QP next to this box.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class JointBounds:
+    """Per-joint velocity box from position, velocity and acceleration limits (buffers reused).
+
+    Args:
+        lower, upper: (n,) position limits [rad].
+        vmax: (n,) velocity limits [rad/s], > 0.
+        amax: (n,) acceleration limits [rad/s^2], > 0.
+    """
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, vmax: np.ndarray, amax: np.ndarray):
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.vmax = np.asarray(vmax, dtype=float)
+        self.amax = np.asarray(amax, dtype=float)
+        n = self.lower.shape[0]
+        for name, x in (("upper", self.upper), ("vmax", self.vmax), ("amax", self.amax)):
+            if x.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {x.shape}")
+        if np.any(self.lower > self.upper):
+            raise ValueError("position limits: lower must be <= upper")
+        if not (np.all(self.vmax > 0) and np.all(self.amax > 0) and np.all(np.isfinite(self.vmax + self.amax))):
+            raise ValueError("velocity and acceleration limits must be finite and > 0")
+        self._neg_vmax = -self.vmax
+        self._two_over_a = 2.0 / self.amax
+        self.lb = np.empty(n)
+        self.ub = np.empty(n)
+        self._t = np.empty(n)
+
+    def compute(
+        self,
+        q: np.ndarray,
+        qd_prev: np.ndarray,
+        dt: float,
+        window: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(lb, ub) (n,) [rad/s] for a step dt [s] from q (n,) [rad] moving at qd_prev (n,) [rad/s].
+
+        Args:
+            window: optional (lo, hi) (n,) [rad], a second position window (e.g. measured q +- lead).
+
+        Returns:
+            internal buffers (copy to keep), lb <= ub everywhere.
+        """
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        lb, ub, t = self.lb, self.ub, self._t
+        if window is not None:
+            lb[:] = self.brake(q - window[0], dt, neg=True)
+            ub[:] = self.brake(window[1] - q, dt)
+        else:
+            lb.fill(-np.inf)
+            ub.fill(np.inf)
+        np.multiply(self.amax, dt, out=t)
+        self._intersect(qd_prev - t, qd_prev + t)
+        self._intersect(self.brake(q - self.lower, dt, neg=True), self.brake(self.upper - q, dt))
+        self._intersect(self._neg_vmax, self.vmax)
+        return lb, ub
+
+    def brake(self, distance: np.ndarray, dt: float, neg: bool = False, decel: float = 1.0) -> np.ndarray:
+        """Fastest qd (n,) [rad/s] towards a stop ``distance`` (n,) [rad] away that can still stop before it.
+
+        A negative distance (already past it) asks to come back in one step. ``neg`` returns the bound
+        for a stop below q (the negated speed). ``decel``: the fraction of a_max the braking may use.
+        """
+        d = np.maximum(distance, 0.0)
+        d *= self._two_over_a
+        if decel != 1.0:
+            d /= decel
+        d += dt * dt
+        np.sqrt(d, out=d)
+        d -= dt
+        d *= self.amax
+        if decel != 1.0:
+            d *= decel
+        d += np.minimum(distance, 0.0) / dt
+        if neg:
+            np.negative(d, out=d)
+        return d
+
+    def _intersect(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """[lb, ub] <- its intersection with [lo, hi]; [lo, hi] wins where they are disjoint."""
+        lb, ub = self.lb, self.ub
+        np.minimum(np.maximum(lb, lo, out=lb), hi, out=lb)
+        np.minimum(np.maximum(ub, lo, out=ub), hi, out=ub)

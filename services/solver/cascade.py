@@ -1,0 +1,34 @@
+"""What the three QP algorithms share (hqp-nullspace, hqp-original, wqp): a QP backend and per-level damping."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from services.solver.base import Algorithm, level_value
+from services.solver.qp import QpBackend
+
+#: Regularisation of the one retry of a level whose QP failed.
+RETRY_EPS = 1e-6
+
+
+class CascadeQp(Algorithm):
+    """Base of the algorithms that solve QPs over the levels.
+
+    Args:
+        backend: QP backend for the levels that need one.
+        eps: damping ``eps ||x||^2`` of each level's objective: one value, or one per level with the last
+            repeated. Tiny (1e-9) gives the exact lexicographic optimum; the service uses
+            ``SolverConfig.damping``.
+        refine: refine each QP solution on its active set (``active_set.refine_on_active_set``); None =
+            only for PIQP, whose interior-point answer is tolerance-limited (DAQP's active set is exact).
+    """
+
+    def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, refine: bool | None = None):
+        super().__init__()
+        self.backend = backend
+        self.eps = eps
+        self.refine = backend.name == "piqp" if refine is None else refine
+
+    def level_eps(self, k: int) -> float:
+        """Damping of level k (0-based)."""
+        return level_value(self.eps, k)

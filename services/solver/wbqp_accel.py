@@ -1,0 +1,277 @@
+"""``wbqp-accel``: seed 002's whole-body acceleration QP for a wheeled-legged robot with an arm.
+
+Decision variable: the generalised accelerations q̈ (7,) of ``q = [x_b, y_b, z_b, α, θ_a0,
+θ_a1, θ_a2]`` (see :mod:`shared.kinematics.mobile_arm`). One QP per control tick Δt [s]:
+
+* objective (eq. 6): ``(P̈ref - P̈)ᵀ Q (P̈ref - P̈) + (q - q_pre)ᵀ R (q - q_pre)`` with
+  ``P̈ = J_a q̈ + J̇_a q̇`` and the discrete prediction (eq. 7) ``q = q_pre + (q̇_pre + q̈ Δt) Δt``;
+  the reference is the PD law of eqs. 5/10, ``P̈ref = P̈d + Kp (Pd - P) + Kd (Ṗd - Ṗ)``;
+* hard end-effector equality (eqs. 8-9): ``J_a q̈ = b``, ``b = P̈ref - J̇_a q̇`` (J̇_a q̇ analytic);
+* position limits through the prediction (eq. 11): ``q_lo <= q_pre + (q̇_pre + q̈ Δt) Δt <= q_hi``;
+* nonholonomic constraint (eq. 12), in its velocity form: the predicted torso velocity has no
+  component across the predicted heading, ``-sin α' ẋ' + cos α' ẏ' = 0`` with
+  ``ẋ' = ẋ + ẍ Δt`` (and ẏ'), ``α' = α + α̇ Δt``. Seed 002 prints ``x cos α - y sin α = 0`` on the
+  predicted *positions*, which would pin the torso to a line through the world origin (at α = 0
+  it reads x = 0: no forward motion at all); "the robot cannot move sideways" is a velocity
+  constraint, so that is what is enforced;
+* bound on the torso's acceleration change (eq. 13): ``|q̈_base - q̈_pre,base| <= ε`` (4 rows).
+
+When the equality cannot hold with the other constraints (target out of reach, or faster than
+eq. 13 lets the torso follow), the QP is infeasible; as section 4.1 argues, the end-effector
+task then moves into the objective (Q term) and the status says ``infeasible`` with the
+achieved acceleration residual. Eq. 6 weighs the hand term ~1e12 times the R term at Δt = 1 ms,
+so that objective is solved as its limit (best hand acceleration, then R with it held).
+The position limits always stay hard. Where eq. 11 and eq. 13
+contradict (the torso must brake harder than ε allows to stay in its box) the limits win.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.solver.qp import QpBackend, make_backend
+from shared.kinematics.mobile_arm import ALPHA, BASE, NQ, MobileArmKinematics
+
+#: Joint names of the 7 generalised coordinates, as they travel in a JointCommand.
+Q_NAMES = ("base_x", "base_y", "base_z", "base_yaw", "arm_j1", "arm_j2", "arm_j3")
+#: Stand-in for an unbounded coordinate [m or rad] (DAQP treats |b| >= 1e30 as infinite).
+UNBOUNDED = 1e30
+
+
+@dataclass
+class WbqpConfig:
+    """Settings of the planner.
+
+    Attributes:
+        dt: control period Δt [s].
+        kp: eq. 5 position gain [1/s^2]; kd: velocity gain [1/s] (critically damped: kd = 2 sqrt(kp)).
+        q_weight: (3,) diagonal of Q [s^4/m^2] (hand acceleration error, objective and fallback).
+        r_weight: (7,) diagonal of R [1/m^2, 1/rad^2] on the position increment q - q_pre. With the
+            equality active, only R shapes the solution: it is Δt^2 ||q̇'||_R^2, a weighted norm of
+            the next velocity, so a heavy arm weight makes the torso carry the motion (the seed's
+            "torso as an extension of the arm") and a heavy z/α weight keeps height and heading.
+        eps: eq. 13 bound ε on the torso's acceleration change per tick [m/s^2, rad/s^2] (4,).
+        limit_margin: position limits shrunk by this [m or rad] on each side.
+        qp: QP backend (``daqp`` default: on this 7-variable QP it costs about 0.8x PIQP's CPU time; ``piqp``).
+        eq_tol: relative residual of eq. 8 (times 1 + ||b||) above which the hard-equality solve counts as failed.
+    """
+
+    dt: float = 0.002
+    kp: float = 25.0
+    kd: float = 10.0
+    q_weight: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    r_weight: tuple[float, ...] = (1.0, 1.0, 20.0, 5.0, 3.0, 3.0, 3.0)
+    eps: tuple[float, float, float, float] = (0.02, 0.02, 0.02, 0.02)
+    limit_margin: float = 0.02
+    qp: str = "daqp"
+    eq_tol: float = 1e-5
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.dt <= 0.1:
+            raise ValueError(f"dt must be in (0, 0.1] s, got {self.dt}")
+        if len(self.r_weight) != NQ or min(self.r_weight) <= 0:
+            raise ValueError(f"r_weight needs {NQ} values > 0, got {self.r_weight}")
+        if len(self.q_weight) != 3 or min(self.q_weight) <= 0:
+            raise ValueError(f"q_weight needs 3 values > 0, got {self.q_weight}")
+        if len(self.eps) != 4 or min(self.eps) <= 0:
+            raise ValueError(f"eps needs 4 values > 0, got {self.eps}")
+
+
+@dataclass
+class WbqpResult:
+    """One tick's outcome.
+
+    Attributes:
+        qdd: (7,) planned q̈. status: ``ok`` (hard equality held) or ``infeasible`` (section 4.1
+            fallback) or ``failed`` (no QP solution: q̈ brakes within the limits). reason: why, when not ok.
+        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations. solve_ms: build + solve wall time [ms].
+        pref_acc: (3,) P̈ref of eq. 10 [m/s^2]. cpu_ms: the same span in this thread's CPU time [ms]
+            (what the tick costs, without the time the OS gave other processes).
+    """
+
+    qdd: np.ndarray
+    status: str
+    reason: str
+    ee_residual: float
+    iters: int
+    solve_ms: float
+    pref_acc: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cpu_ms: float = 0.0
+
+
+class WbqpAccel:
+    """Seed 002's planner: one QP in q̈ per tick (see the module docstring).
+
+    Args:
+        kin: hand kinematics in the 7-D coordinates.
+        lower, upper: (7,) position limits [m, rad] (±inf for unbounded x, y, α).
+        config: settings.
+        backend: QP backend instance (default: ``make_backend(config.qp)``).
+    """
+
+    name = "wbqp-accel"
+
+    def __init__(
+        self,
+        kin: MobileArmKinematics,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        config: WbqpConfig | None = None,
+        backend: QpBackend | None = None,
+    ):
+        self.kin = kin
+        self.config = cfg = config or WbqpConfig()
+        lo = np.asarray(lower, dtype=float) + cfg.limit_margin
+        hi = np.asarray(upper, dtype=float) - cfg.limit_margin
+        if lo.shape != (NQ,) or np.any(lo > hi):
+            raise ValueError("limits: need (7,) lower <= upper (after the margin)")
+        self.lower = np.where(np.isfinite(lo), lo, -UNBOUNDED)
+        self.upper = np.where(np.isfinite(hi), hi, UNBOUNDED)
+        self.backend = backend or make_backend(cfg.qp)
+        self.Q = np.diag(cfg.q_weight)
+        self.R = np.diag(cfg.r_weight)
+        self.eps = np.asarray(cfg.eps, dtype=float)
+        self.qdd_prev = np.zeros(NQ)
+
+    def reset(self, qdd: np.ndarray | None = None) -> None:
+        """Forget the previous acceleration (eq. 13's q̈_pre), e.g. after a restart."""
+        self.qdd_prev = np.zeros(NQ) if qdd is None else np.asarray(qdd, dtype=float).copy()
+
+    # ------------------------------------------------------------------ pieces (tested one by one)
+
+    def reference(self, q, qd, p_d, v_d, a_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P̈ref (3,) of eq. 10, P (3,), Ṗ (3,)): PD on the hand from its desired p_d, v_d, a_d [m, m/s, m/s^2]."""
+        p = self.kin.hand(q)
+        J = self.kin.jacobian(q)
+        v = J @ qd
+        cfg = self.config
+        return a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - v), p, v
+
+    def box(self, q: np.ndarray, qd: np.ndarray, with_eq13: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds (lo, hi) (7,) on q̈ from eq. 11 (prediction in the limits) and eq. 13 (torso rows)."""
+        dt = self.config.dt
+        lo = (self.lower - q - qd * dt) / (dt * dt)
+        hi = (self.upper - q - qd * dt) / (dt * dt)
+        # Joints already past a limit (measured state): the bounds cross; brake back towards the box.
+        crossed = lo > hi
+        if crossed.any():
+            mid = np.where(q > self.upper, hi, lo)
+            lo[crossed] = hi[crossed] = mid[crossed]
+        if with_eq13:
+            lo_b = np.maximum(lo[BASE], self.qdd_prev[BASE] - self.eps)
+            hi_b = np.minimum(hi[BASE], self.qdd_prev[BASE] + self.eps)
+            # Where eq. 13 and eq. 11 disagree, the position limit wins (a box must never be left).
+            ok = lo_b <= hi_b
+            lo[BASE] = np.where(ok, lo_b, lo[BASE])
+            hi[BASE] = np.where(ok, hi_b, hi[BASE])
+        return lo, hi
+
+    def nonholonomic_row(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
+        """(row (7,), rhs): ``row @ q̈ = rhs`` makes the predicted lateral velocity zero (eq. 12, velocity form).
+
+        Lateral velocity after the tick: ``-sin(α') (ẋ + ẍ Δt) + cos(α') (ẏ + ÿ Δt)`` with
+        ``α' = α + α̇ Δt + α̈ Δt^2``; linear in ẍ, ÿ and (to first order) α̈.
+        """
+        dt = self.config.dt
+        a = q[ALPHA] + qd[ALPHA] * dt  # α' at α̈ = 0
+        s, c = math.sin(a), math.cos(a)
+        row = np.zeros(NQ)
+        row[0], row[1] = -s * dt, c * dt
+        # The predicted heading also moves with α̈ (by α̈ Δt^2): linearised about α̈ = 0.
+        row[ALPHA] = -(c * qd[0] + s * qd[1]) * dt * dt
+        return row, s * qd[0] - c * qd[1]
+
+    # ------------------------------------------------------------------ tick
+
+    def solve(
+        self,
+        q: np.ndarray,
+        qd: np.ndarray,
+        p_d: np.ndarray,
+        v_d: np.ndarray | None = None,
+        a_d: np.ndarray | None = None,
+    ) -> WbqpResult:
+        """Plan q̈ (7,) for this tick from q_pre = q (7,), q̇_pre = qd (7,) and the hand's desired motion.
+
+        Args:
+            q, qd: current generalised position [m, rad] and velocity [m/s, rad/s].
+            p_d, v_d, a_d: desired hand position, velocity, acceleration in Σw (3,) [m, m/s, m/s^2].
+        """
+        c0 = time.thread_time()  # first: its own cost (~10 us here) stays out of the wall figure
+        t0 = time.perf_counter()
+        cfg = self.config
+        dt = cfg.dt
+        v_d = np.zeros(3) if v_d is None else v_d
+        a_d = np.zeros(3) if a_d is None else a_d
+        p, J, jdqd = self.kin.evaluate(q, qd)
+        pref = a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - J @ qd)  # eq. 10
+        b = pref - jdqd  # eq. 9
+        lo, hi = self.box(q, qd)
+        nh_row, nh_rhs = self.nonholonomic_row(q, qd)
+        # Objective eq. 6 with eq. 7 (Δq = Δt q̇ + Δt^2 q̈), as 0.5 q̈ᵀ H q̈ + fᵀ q̈:
+        #   (b - J q̈)ᵀ Q (b - J q̈) + (Δt q̇ + Δt^2 q̈)ᵀ R (Δt q̇ + Δt^2 q̈).
+        # On the feasible set of eq. 8 the first term is identically 0, so the hard-equality QP
+        # keeps only the R term (divided by Δt^4: the same minimiser, a well-scaled H):
+        #   H = 2 R, f = 2 R q̇ / Δt.
+        reg = self.backend.regularization * np.eye(NQ)
+        H = 2.0 * self.R + reg
+        f = 2.0 * (self.R @ qd) / dt
+        nh_E, nh_e = nh_row[None, :] / dt, np.array([nh_rhs / dt])
+        E = np.vstack([J, nh_E])
+        e = np.r_[b, nh_e]
+        res = self.backend.solve(H, f, lo, hi, E=E, e=e, key="wbqp-eq")
+        status, reason = "ok", ""
+        resid = math.inf
+        if res.ok:
+            resid = float(np.linalg.norm(J @ res.x - b))
+        if not res.ok or resid > cfg.eq_tol * (1.0 + float(np.linalg.norm(b))):
+            # Section 4.1: the end-effector task as objective, the other constraints kept. Eq. 6
+            # weighs the two terms as (Q, Δt^4 R): the hand term dominates by ~1e12, which no QP
+            # solver resolves in one H (the R part drowns in its regularisation). Solved as its
+            # limit instead, in two well-scaled QPs: the best hand acceleration first, then the
+            # R term with that hand acceleration held.
+            eq_status = res.status if not res.ok else f"equality residual {resid:.3g}"
+            JtQ = J.T @ self.Q
+            H2 = 2.0 * (JtQ @ J) + reg
+            f2 = -2.0 * (JtQ @ b)
+            relaxed = ""
+            res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
+            if not res.ok:
+                # Eq. 13 against eq. 12 (e.g. a turn needs a centripetal acceleration the ε bound
+                # does not allow from the previous tick's): the position limits stay, ε goes.
+                lo, hi = self.box(q, qd, with_eq13=False)
+                res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
+                relaxed = "; eq. 13 relaxed this tick"
+            if res.ok:
+                held = self.backend.solve(H, f, lo, hi, E=np.vstack([J, nh_E]), e=np.r_[J @ res.x, nh_e], key="wbqp-eq")
+                if held.ok and np.linalg.norm(J @ held.x - J @ res.x) <= cfg.eq_tol * (1.0 + np.linalg.norm(b)):
+                    res = held
+            if res.ok:
+                resid = float(np.linalg.norm(J @ res.x - b))
+                status = "infeasible"
+                reason = (
+                    f"J_a q̈ = b cannot hold within the limits and eq. 13 ({eq_status}): "
+                    f"hand task as objective, acceleration residual {resid:.3g} m/s^2{relaxed}"
+                )
+        if not res.ok:
+            # No solution at all: brake every coordinate as hard as the box allows.
+            qdd = np.clip(-qd / dt, lo, hi)
+            resid = float(np.linalg.norm(J @ qdd - b))
+            self.qdd_prev = qdd
+            ms = (time.perf_counter() - t0) * 1e3
+            cpu = (time.thread_time() - c0) * 1e3
+            return WbqpResult(qdd, "failed", f"QP failed ({res.status}): braking", resid, res.iters, ms, pref, cpu)
+        qdd = np.minimum(np.maximum(res.x, lo), hi)  # solver tolerance only
+        self.qdd_prev = qdd
+        ms = (time.perf_counter() - t0) * 1e3
+        return WbqpResult(qdd, status, reason, resid, res.iters, ms, pref, (time.thread_time() - c0) * 1e3)
+
+
+def predict(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 7: (q', q̇') = (q + (q̇ + q̈ Δt) Δt, q̇ + q̈ Δt)."""
+    qd_next = qd + qdd * dt
+    return q + qd_next * dt, qd_next

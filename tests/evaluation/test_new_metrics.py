@@ -1,0 +1,185 @@
+"""Issue-12 evaluation figures with known answers: p99, stuck_s, jerk, the IK reachability check,
+self-collision clearance, the mink peer, and the eval's skeleton-map / service-default handling."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+import numpy as np
+import pytest
+
+from services.evaluation.cli import _settings, add_arguments, evaluate
+from services.evaluation.collisions import SelfCollision
+from services.evaluation.metrics import _stats, jerk_rms, stuck_seconds, summarise, trace_metrics
+from services.evaluation.reachability import IK_TOL, ArmIk, check_targets
+from services.evaluation.runner import load_and_retarget, run_algorithm
+from services.retarget.retargeter import RetargetConfig
+from shared.messages import TARGET_NAMES, Target
+from shared.robot.pinocchio_model import build_robot_model
+from tests.evaluation.test_metrics import K, synthetic_trace
+from tests.evaluation.test_runner import DURATION, RATE, fk_targets
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return build_robot_model()
+
+
+@pytest.fixture(scope="module")
+def arms():
+    return build_robot_model(with_waist=False)
+
+
+def test_p99_is_the_99th_percentile():
+    v = np.arange(1001, dtype=float)  # 0..1000
+    s = _stats(v)
+    assert s["p99"] == pytest.approx(990.0) and s["max"] == 1000.0 and s["mean"] == pytest.approx(500.0)
+
+
+def test_stuck_counts_the_longest_reachable_miss(robot):
+    tr = synthetic_trace(robot, {})
+    tr.kin_p["left_wrist"][40:90] += np.array([0.03, 0.0, 0.0])  # 3 cm off for 50 ticks
+    tr.kin_p["right_wrist"][100:120] += np.array([0.0, 0.05, 0.0])  # 5 cm off for 20 ticks
+    tr.kin_p["left_wrist"][150:160] += np.array([0.01, 0.0, 0.0])  # 1 cm: under the 2 cm threshold
+    ok = {"left": np.ones(K, bool), "right": np.ones(K, bool)}
+    assert stuck_seconds(tr, ok) == pytest.approx(50 * tr.dt)
+    ok["left"][:] = False  # the left targets were unreachable: its miss does not count
+    assert stuck_seconds(tr, ok) == pytest.approx(20 * tr.dt)
+
+
+def test_jerk_of_a_cubic_is_its_constant_third_derivative(robot):
+    tr = synthetic_trace(robot, {})
+    t = np.arange(K) * tr.dt
+    tr.q = np.tile(robot.q_rest, (K, 1))
+    tr.q[:, 0] += 5.0 * t**3 / 6.0  # jerk 5 rad/s^3 on one joint of n
+    n = tr.q.shape[1]
+    assert jerk_rms(tr) == pytest.approx(5.0 / np.sqrt(n), rel=1e-6)
+
+
+def test_ik_check_reaches_forward_kinematics_and_rejects_far_points(arms):
+    rng = np.random.default_rng(3)
+    ik = ArmIk(arms, "left")
+    for q in arms.random_configurations(5, rng):
+        p = arms.frame_poses(q, names=("left_wrist", "left_elbow"))
+        res, _ = ik.solve(p["left_wrist"][0])
+        assert res <= IK_TOL
+        # the pair the posture makes, from a start 0.2 rad off it (the stream check warm-starts likewise)
+        start = arms.clip(q + 0.2 * rng.uniform(-1.0, 1.0, q.shape))
+        res, _ = ik.solve(p["left_wrist"][0], p["left_elbow"][0], q0=start)
+        assert res <= 0.01
+    far = ik.robot.frame_poses(arms.q_rest, names=("left_wrist",))["left_wrist"][0] + np.array([0.0, 0.0, 1.0])
+    res, _ = ik.solve(far)
+    assert res > 0.2  # 1 m above the hanging hand is ~0.65 m from the shoulder; the arm reaches 0.38 m
+
+
+def test_reachability_report_counts_every_valid_target(robot, arms):
+    targets = fk_targets(arms, np.arange(0.0, 0.3, 0.05))
+    # one frame with the left wrist 1 m away, one with it invalid (not counted)
+    bad = targets[2].targets["left_wrist"]
+    targets[2].targets["left_wrist"] = Target(bad.p + np.array([1.0, 0, 0]), bad.q, bad.v, bad.w, True, True)
+    t5 = targets[5].targets["left_wrist"]
+    targets[5].targets["left_wrist"] = Target(t5.p, t5.q, t5.v, t5.w, False, True)
+    rep = check_targets(arms, targets)
+    assert rep.fraction() == pytest.approx(10 / 11)  # 12 wrist targets, 1 invalid, 1 out of reach
+    assert not rep.reachable()["left"][2] and rep.reachable()["left"][5]
+    tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", collisions=False)
+    m = trace_metrics(tr, robot, report=rep)
+    assert m["reachable_fraction"] == pytest.approx(10 / 11)
+    # the miss spans the unreachable frame (0.05 s, not counted) and the way back (counted)
+    everything = {s: np.ones(len(tr.t), bool) for s in ("left", "right")}
+    assert stuck_seconds(tr, everything) - m["stuck_s"] == pytest.approx(0.05, abs=0.006)
+
+
+def test_clearance_is_positive_at_rest_and_negative_with_a_hand_in_the_torso(robot):
+    sc = SelfCollision(robot.profile, robot.joint_names)
+    rest = sc.clearance(robot.q_rest)
+    assert 0.01 < rest < 0.2
+    q = robot.q_rest.copy()
+    j = {n: i for i, n in enumerate(robot.joint_names)}
+    # left upper arm rolled in against the body, elbow folded: the forearm goes into the torso
+    q[j["left_shoulder_pitch_joint"]] = 0.0
+    q[j["left_shoulder_roll_joint"]] = -0.6
+    q[j["left_shoulder_yaw_joint"]] = 0.0
+    q[j["left_elbow_joint"]] = 2.0
+    assert sc.clearance(robot.clip(q)) < -0.02
+
+
+def test_mink_peer_tracks_reachable_targets(robot):
+    targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE))
+    tr = run_algorithm(robot, targets, "mink", collisions=False)
+    m = trace_metrics(tr, robot)
+    assert m["wrist_err_cm"]["mean"] < 0.5, m["wrist_err_cm"]
+    assert m["limit_violations"] == 0
+    assert tr.q.shape[1] == robot.nq and set(np.unique(tr.status)) == {"ok"}
+
+
+def test_summary_has_p99_of_the_worst_clip_and_sums_collisions(robot):
+    a = trace_metrics(synthetic_trace(robot, {n: np.array([0.01, 0, 0]) for n in TARGET_NAMES}), robot)
+    b = trace_metrics(synthetic_trace(robot, {n: np.array([0.04, 0, 0]) for n in TARGET_NAMES}), robot)
+    a["self_collisions"], b["self_collisions"] = 2, 3
+    a["stuck_s"], b["stuck_s"] = 0.1, 0.4
+    s = summarise([{"clip": "a", "frames": 30, "algos": {"x": a}}, {"clip": "b", "frames": 10, "algos": {"x": b}}])
+    assert s["x"]["wrist_err_cm"]["p99"] == pytest.approx(4.0)
+    assert s["x"]["self_collisions"] == 5 and s["x"]["stuck_s"] == pytest.approx(0.4)
+
+
+def _args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return p.parse_args(argv)
+
+
+def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
+    args = _args(["x.bvh", "--json", str(tmp_path / "o.json")])
+    cfg = RetargetConfig()
+    assert args.velocity_tau == cfg.velocity_tau and args.mapping == cfg.mode
+    retarget = _settings(args)[3]  # what the retargeter is built with
+    assert retarget["elbow_placement"] == cfg.elbow_placement
+    assert retarget["orientation_reference"] == cfg.orientation_reference and retarget["mode"] == cfg.mode
+
+
+def _renamed_rig(src, dst) -> None:
+    """A real Bandai clip with every joint renamed (no built-in map fits it)."""
+    text = src.read_text()
+    text = re.sub(r"\b(\w+)_L\b", r"Sin\1", text)
+    text = re.sub(r"\b(\w+)_R\b", r"Dex\1", text)
+    dst.write_text(text.replace("Hips", "Pelvis0"))
+
+
+def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, tmp_path, robot):
+    src = next(p for p in bvh_clips if "raise-up-both-hands_normal" in p.name)
+    clip = tmp_path / "rig.bvh"
+    _renamed_rig(src, clip)
+    args = _args([str(clip), "--algos", "hqp-nullspace", "--no-sim", "--json", str(tmp_path / "o.json")])
+    with pytest.raises(SystemExit) as exc:
+        evaluate(args)
+    msg = str(exc.value)
+    assert msg.startswith("mimic eval:") and "skeleton" in msg and "Traceback" not in msg
+    smap = tmp_path / "map.toml"
+    bones = {"pelvis": "Pelvis0", "spine": "Spine", "chest": "Chest", "neck": "Neck", "head": "Head"}
+    for side, pre in (("left", "Sin"), ("right", "Dex")):
+        bones |= {
+            f"{side}_clavicle": f"{pre}Shoulder",
+            f"{side}_shoulder": f"{pre}UpperArm",
+            f"{side}_elbow": f"{pre}LowerArm",
+            f"{side}_wrist": f"{pre}Hand",
+            f"{side}_hand": f"{pre}Hand/end",
+        }
+    text = 'name = "renamed"\n[bones]\n' + "".join(f'{k} = "{v}"\n' for k, v in bones.items())
+    smap.write_text(text + '[hips]\nleft = "SinUpperLeg"\nright = "DexUpperLeg"\n')  # as the built-in map
+    _, mapped = load_and_retarget(clip, robot, retarget={}, skeleton_map=smap)
+    _, original = load_and_retarget(src, robot, retarget={})
+    assert len(mapped) == len(original)
+    for a, b in zip(mapped[::10], original[::10]):
+        for n in TARGET_NAMES:
+            np.testing.assert_allclose(a.targets[n].p, b.targets[n].p, atol=1e-9)
+
+
+def test_missing_mink_is_a_one_line_error(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "mink", None)  # import mink -> ImportError
+    args = _args(["x.bvh", "--algos", "hqp-nullspace,mink", "--json", str(tmp_path / "o.json")])
+    with pytest.raises(SystemExit) as exc:
+        evaluate(args)
+    assert "mink" in str(exc.value) and "\n" not in str(exc.value)

@@ -1,0 +1,50 @@
+"""Posture-policy files for tests: random weights of the real layout (no torch needed)."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from services.posture.features import ARM_STATE_DIM, DECODER_DIM, STATE_DIM, action_joints
+from services.posture.policy import save_policy
+from services.retarget.elbow import ArmGeometry
+from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import matrix_to_quat
+from shared.targets import SIDES
+
+
+def random_weights(rng: np.random.Generator, hidden: int = 16, scale: float = 0.3) -> dict[str, np.ndarray]:
+    """Encoder 14-h-h-3 and decoder 17-h-h-6 per side, small random weights."""
+    out = {}
+    for side in SIDES:
+        for net, dims in (
+            ("enc", (STATE_DIM, hidden, hidden, 3)),
+            ("dec", (DECODER_DIM, hidden, hidden, ARM_STATE_DIM)),
+        ):
+            for k, (a, b) in enumerate(itertools.pairwise(dims)):
+                out[f"{side}.{net}.W{k}"] = rng.normal(scale=scale, size=(a, b))
+                out[f"{side}.{net}.b{k}"] = rng.normal(scale=scale, size=b)
+    return out
+
+
+def policy_meta(robot: RobotModel, threshold: float) -> dict:
+    """Metadata of the real layout for ``robot`` (arms measured on it) with one gate threshold [m]."""
+    rest = robot.frame_poses(robot.q_rest)
+    arms = {}
+    for s in SIDES:
+        g = ArmGeometry.measure(robot, s, samples=100)
+        arms[s] = {"centre": g.centre.tolist(), "upper": g.upper, "fore": g.fore}
+    return {
+        "robot": robot.profile.name,
+        "arms": arms,
+        "gate_threshold": dict.fromkeys(SIDES, threshold),
+        "q_ref": {s: matrix_to_quat(rest[f"{s}_wrist"][1]).tolist() for s in SIDES},
+        "action_joints": {s: [robot.joint_names[j] for j in action_joints(robot, s)] for s in SIDES},
+    }
+
+
+def write_random_policy(path: Path, robot: RobotModel, threshold: float = 1e3, seed: int = 0) -> Path:
+    """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0)."""
+    return save_policy(path, random_weights(np.random.default_rng(seed)), policy_meta(robot, threshold))

@@ -1,0 +1,70 @@
+"""Training (PyTorch): behaviour cloning on a real clip, the numpy export, the CLI end to end. Tiny sizes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="training needs the optional extra: pip install 'mimic[train]'")
+
+from services.posture.policy import PosturePolicy, _layers, mlp  # noqa: E402
+from services.posture.rollout import ArmsModel, RolloutConfig, prepare_clip, rollout  # noqa: E402
+from services.posture.train import TrainConfig, fit, from_rollouts  # noqa: E402
+from shared.robot.pinocchio_model import build_robot_model  # noqa: E402
+from tests.posture.policy_files import policy_meta  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def smallest(bvh_clips):
+    """The two shortest clips (by file size)."""
+    return sorted(bvh_clips, key=lambda p: p.stat().st_size)[:2]
+
+
+@pytest.fixture(scope="module")
+def demo(smallest):
+    robot = build_robot_model(with_waist=False)
+    arms = ArmsModel(robot)
+    clip = prepare_clip(smallest[0], robot)
+    roll = rollout(arms, clip.slice(0, min(len(clip.t), 60)), "expert", None, RolloutConfig(settle=0.5))
+    return robot, arms, from_rollouts([roll])
+
+
+def test_bc_fits_expert_labels_and_export_matches_torch(demo):
+    robot, _arms, data = demo
+    w, rep = fit(data, TrainConfig(hidden=16, epochs=60, batch=64, seed=0))
+    w2, _ = fit(data, TrainConfig(hidden=16, epochs=60, batch=64, seed=0))
+    assert all(np.array_equal(w[k], w2[k]) for k in w)  # seeded: the same weights twice
+    for i, side in enumerate(("left", "right")):
+        S, A = data.S[i], data.A[i]
+        pred = mlp(_layers(w, f"{side}.enc"), S)
+        r2 = 1 - ((pred - A) ** 2).sum() / ((A - A.mean(0)) ** 2).sum()
+        assert r2 > 0.5, (side, r2)  # eq. (7) learned on its own data
+        assert rep["sides"][side]["curve"][-1][0] < 0.5 * rep["sides"][side]["curve"][0][0]
+    pol = PosturePolicy(w, {**policy_meta(robot, 1e3)})
+    out = pol.act(np.stack([data.S[0][5], data.S[1][5]]))
+    np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # ~1 min on an idle machine; over 5 min at load 30 (retargeting with the upper-arm IK)
+def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
+    out, rep, png = tmp_path / "p.npz", tmp_path / "r.json", tmp_path / "curve.png"
+    cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
+           "--json", str(rep), "--plot", str(png), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1",
+           "--holdout-every", "2", "--chunk-s", "1.5"]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    pol = PosturePolicy.load(out)
+    meta = pol.meta
+    assert meta["train_clips"] == [smallest[0].name] or meta["train_clips"] == [smallest[1].name]
+    assert set(meta["train_clips"]) | set(meta["test_clips"]) == {p.name for p in smallest}
+    assert meta["state_layout"][:7] == ["Qw", "Qx", "Qy", "Qz", "px", "py", "pz"] and len(meta["state_layout"]) == 14
+    assert meta["robot"] == "g1_29dof" and len(meta["sha256"]) == 64
+    report = json.loads(rep.read_text())
+    assert [r["round"] for r in report["relabel"]] == [0, 1]
+    assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time
+    assert png.stat().st_size > 10_000
