@@ -118,13 +118,14 @@ def wait_for_endpoint(endpoint: str, timeout: float) -> bool:
     """Wait until a TCP endpoint (``tcp/HOST:PORT``) accepts connections; False after ``timeout`` [s]."""
     host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    while True:  # at least one try, so timeout 0 asks "is it listening now?"
         with socket.socket() as s:
             s.settimeout(0.2)
             if s.connect_ex((host, int(port))) == 0:
                 return True
+        if time.monotonic() >= deadline:
+            return False
         time.sleep(0.1)
-    return False
 
 
 def open_session(args: argparse.Namespace) -> zenoh.Session:
@@ -543,6 +544,22 @@ def query(session: zenoh.Session, key: str, payload: bytes | None = None, timeou
             return reply.ok.payload.to_bytes()
         raise RuntimeError(f"query {key} failed: {reply.err.payload.to_bytes().decode(errors='replace')}")
     raise RuntimeError(f"query {key}: no reply within {timeout} s")
+
+
+def query_when_ready(session: zenoh.Session, key: str, timeout: float = 3.0, interval: float = 0.3) -> bytes:
+    """GET ``key`` again every ``interval`` [s] until it answers or ``timeout`` [s] passes.
+
+    A session opened a moment ago may not know the route to the queryable yet, so a one-shot
+    command line tool would report "no reply" from a healthy stack. Raises RuntimeError like
+    :func:`query` (its last error).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return query(session, key, None, timeout=min(interval, max(0.05, deadline - time.monotonic())))
+        except RuntimeError as exc:
+            if "no reply" not in str(exc) or time.monotonic() >= deadline:
+                raise
 
 
 def setup_logging(level: str | int = "INFO", prefix: str = "") -> None:

@@ -297,6 +297,20 @@ def peek(payload: bytes | bytearray | memoryview) -> dict | None:
     return d if isinstance(d, dict) else None
 
 
+def restamp(payload: bytes, t0_ns: int) -> bytes:
+    """``payload`` with its header's ``t0`` (bus entry, wall clock [ns]) set to ``t0_ns``.
+
+    A replayed message enters the bus again: with its recorded ``t0`` it would look older than
+    the stream it joins (latency figures wrong, and a receiver could not tell a replay starting
+    over from a late packet). Payloads without a ``hdr`` are returned unchanged.
+    """
+    d = peek(payload)
+    if d is None or not isinstance(d.get("hdr"), list) or len(d["hdr"]) != 3:
+        return payload
+    d["hdr"][2] = int(t0_ns)
+    return msgpack.packb(d, use_bin_type=True)
+
+
 #: Largest query payload (hand-typed commands and small maps) [bytes].
 MAX_QUERY_BYTES = 64 * 1024
 

@@ -21,3 +21,18 @@ def mocap_dir() -> Path:
     """The mocap data folder: ``$MIMIC_MOCAP_DIR``, or ``../shared/data/mocap`` from the repo root."""
     env = os.environ.get(MOCAP_DIR_ENV)
     return Path(env) if env else (REPO_ROOT.parent / "shared" / "data" / "mocap").resolve()
+
+
+def unused_path(path: Path) -> Path:
+    """``path`` if nothing is there yet, else the first free ``<stem>-<n><suffix>`` (n = 1, 2, ...).
+
+    Recordings and summaries are never overwritten silently: a second run beside the first, or
+    the next run of the session, gets a new numbered name.
+    """
+    path = Path(path)
+    if not path.exists():
+        return path
+    n = 1
+    while (candidate := path.with_name(f"{path.stem}-{n}{path.suffix}")).exists():
+        n += 1
+    return candidate

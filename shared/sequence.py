@@ -12,6 +12,11 @@ The rule, per source:
 * A **restart** of the source (a replayed clip, a rebooted device: seq and clock begin
   again) is recognised, and the frame accepted as the first of a new stream, when
 
+  - its ``seq`` is not above the last accepted one but it entered the bus later (``t0``,
+    wall clock [ns] stamped by the publisher, later than the last accepted frame's): a frame
+    made after the last one with a lower ``seq`` can only come from a restarted source (a
+    duplicated or reordered packet carries its original, earlier ``t0``), so one frame is
+    enough (``trust_t0``; off where ``t0`` is stamped on arrival, e.g. ``ingest --restamp``), or
   - its ``seq`` is more than ``reset_gap`` below the last accepted one (an obvious
     restart: one frame is enough), or
   - ``resync_after`` frames in a row were out of order (a restart that jumped back only a
@@ -62,6 +67,7 @@ class Verdict:
 class _Stream:
     seq: int
     stamp: float
+    t0: int = 0
     bad_in_row: int = 0
 
 
@@ -71,13 +77,15 @@ class SequenceGuard:
     Args:
         reset_gap: a seq this far below the last accepted one is a restart at once.
         resync_after: consecutive out-of-order frames after which the source counts as restarted.
+        trust_t0: a lower or equal seq with a later ``t0`` is a restart at once (see the module doc).
     """
 
-    def __init__(self, reset_gap: int = 1000, resync_after: int = 30):
+    def __init__(self, reset_gap: int = 1000, resync_after: int = 30, trust_t0: bool = True):
         if reset_gap < 1 or resync_after < 1:
             raise ValueError(f"reset_gap ({reset_gap}) and resync_after ({resync_after}) must be >= 1")
         self.reset_gap = reset_gap
         self.resync_after = resync_after
+        self.trust_t0 = trust_t0
         self._streams: dict[str, _Stream] = {}
 
     def check(self, hdr: Header, source: str = "") -> Verdict:
@@ -85,6 +93,10 @@ class SequenceGuard:
         last = self._streams.get(source)
         if last is None:
             return Verdict(True)
+        if self.trust_t0 and hdr.seq <= last.seq and last.t0 > 0 and hdr.t0 > last.t0:
+            return Verdict(
+                True, "seq_reset", f"seq {last.seq} -> {hdr.seq} on a newer frame (t0 later): source restarted"
+            )
         if hdr.seq == last.seq:
             reason, detail = "duplicate_seq", f"seq {hdr.seq} repeated"
         elif hdr.seq < last.seq:
@@ -105,7 +117,7 @@ class SequenceGuard:
 
     def accept(self, hdr: Header, source: str = "") -> None:
         """Record ``hdr`` as ``source``'s last used frame."""
-        self._streams[source] = _Stream(hdr.seq, hdr.stamp)
+        self._streams[source] = _Stream(hdr.seq, hdr.stamp, hdr.t0)
 
     def last_stamp(self, source: str = "") -> float | None:
         """Stamp [s] of ``source``'s last accepted frame (None before the first)."""

@@ -124,11 +124,17 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
+    skipped = []
     for path in args.clips:
         try:
             clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
-        except (ClipError, OSError) as exc:
-            raise SystemExit(f"mimic eval: {exc}") from None
+        except (ClipError, OSError, ValueError, RuntimeError) as exc:
+            # One bad or unknown-rig clip must not cost the user the whole run: say it in one
+            # line, record it, go on with the others.
+            log.error("skipping %s: %s", path, exc)
+            skipped.append({"clip": str(path), "error": str(exc)})
+            bar.update(len(runs))
+            continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
         report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
@@ -154,8 +160,11 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         clips_out.append(entry)
     bar.close()
+    if not clips_out:
+        raise SystemExit(f"mimic eval: no clip could be evaluated ({len(skipped)} skipped, see above)")
     result = {
         "clips": clips_out,
+        "skipped": skipped,
         "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)},
         "paper": PAPER,
     }

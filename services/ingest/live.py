@@ -31,8 +31,14 @@ class LiveIngest:
     restamp: bool = False
     sanitizers: dict[str, FrameSanitizer] = field(default_factory=dict)
 
-    def _sanitize(self, source: str, frame: HumanFrame, issues: list[Issue]) -> tuple[HumanFrame | None, list[Issue]]:
-        san = self.sanitizers.setdefault(source, FrameSanitizer())
+    def _sanitize(
+        self, source: str, frame: HumanFrame, issues: list[Issue], sender_t0: bool = False
+    ) -> tuple[HumanFrame | None, list[Issue]]:
+        san = self.sanitizers.get(source)
+        if san is None:
+            # Xsens frames and restamped ones carry the arrival time as t0, which cannot tell a
+            # restarted sender from a late packet; the sender's own t0 can.
+            san = self.sanitizers[source] = FrameSanitizer(trust_t0=sender_t0)
         return san.step(frame, issues)
 
     def step(self, source: str, payload: bytes, now_ns: int) -> tuple[HumanFrame | None, list[Issue]]:
@@ -42,10 +48,12 @@ class LiveIngest:
             (frame to publish or None, issues found); an unreadable datagram
             gives (None, [Issue(reason, "dropped", detail)]).
         """
+        sender_t0 = False
         try:
             if source == "udp":
                 frame, issues = decode_lenient(payload)
-                if self.restamp or frame.hdr.t0 <= 0:
+                sender_t0 = not self.restamp and frame.hdr.t0 > 0
+                if not sender_t0:
                     frame.hdr.t0 = now_ns
             elif source == "xsens":
                 frame, issues = self.xsens.step(payload, now_ns), []
@@ -55,4 +63,4 @@ class LiveIngest:
                 raise ValueError(f"unknown source {source!r}")
         except (MessageError, MvnError) as exc:
             return None, [Issue(exc.reason, "dropped", f"{source}: {exc.detail}")]
-        return self._sanitize(source, frame, issues)
+        return self._sanitize(source, frame, issues, source == "udp" and sender_t0)

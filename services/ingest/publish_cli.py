@@ -61,6 +61,10 @@ def load_for_playback(args: argparse.Namespace):
     return clip
 
 
+class NoReceiverError(RuntimeError):
+    """No router or no subscriber: the frames would reach nobody."""
+
+
 def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> dict:
     """Publish the clip; returns a summary (frames, late frames, wall duration)."""
     clip = load_for_playback(args)
@@ -75,6 +79,17 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
             # The first match is often the router alone; give the routes to every subscriber
             # behind it a moment so the opening frames are not lost.
             stop.wait(min(0.5, args.wait_subscriber))
+        elif not stop.is_set():
+            # Nobody can receive a frame: playing the clip into the void and exiting 0 would tell
+            # the user it worked.
+            connected = list(svc.session.info.routers_zid()) or list(svc.session.info.peers_zid())
+            where = ", ".join(args.connect or []) or "$MIMIC_CONNECT / tcp/127.0.0.1:7447"
+            if not connected:
+                raise NoReceiverError(f"no router reachable at {where}: start the stack (mimic up) or pass --connect")
+            raise NoReceiverError(
+                f"nothing subscribes to {svc.keys.mocap_frame} within {args.wait_subscriber:g} s: is the stack up on "
+                f"session {svc.keys.session!r}? (--session / $MIMIC_SESSION)"
+            )
         svc.status.extra.update({"clip_fps": clip.fps, "clip_frames": clip.n_frames, "rate": args.rate})
         svc.log.info(
             "playing %s: %d frames at %.1f Hz x %.2f%s",
@@ -116,7 +131,7 @@ def run(args: argparse.Namespace, stop_event: threading.Event | None = None) -> 
 def main(args: argparse.Namespace) -> int:
     try:
         summary = run(args)
-    except (ClipError, ValueError, OSError) as exc:
+    except (ClipError, ValueError, OSError, NoReceiverError) as exc:
         import logging
 
         logging.getLogger("mimic.publish").error("%s", exc)

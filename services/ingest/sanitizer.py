@@ -127,6 +127,8 @@ class FrameSanitizer:
         max_bone_distance: [m] from the pelvis origin.
         reset_gap: seq jump back treated as a source restart at once.
         resync_after: consecutive out-of-order frames treated as a source restart.
+        trust_t0: ``hdr.t0`` is the sender's wall clock when it made the frame, so a lower seq with
+            a later t0 is a restart at once (False when t0 is stamped on arrival).
         counts: (reason, action) -> count over the sanitizer's life.
     """
 
@@ -134,13 +136,14 @@ class FrameSanitizer:
     max_bone_distance: float = 3.0
     reset_gap: int = 1000
     resync_after: int = 30
+    trust_t0: bool = True
     counts: Counter = field(default_factory=Counter)
     _last_p: dict[str, np.ndarray] = field(default_factory=dict)
     _last_q: dict[str, np.ndarray] = field(default_factory=dict)
     _seen: set[str] = field(default_factory=set)
 
     def __post_init__(self) -> None:
-        self._guard = SequenceGuard(self.reset_gap, self.resync_after)
+        self._guard = SequenceGuard(self.reset_gap, self.resync_after, self.trust_t0)
 
     def _quat(self, q: np.ndarray) -> tuple[np.ndarray | None, bool]:
         """(unit quaternion or None if beyond repair, was_repaired)."""

@@ -19,13 +19,16 @@ from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
 from services.launcher.monitor import BusMonitor
+from services.launcher.session_lock import SessionBusyError, SessionLock
 from services.launcher.stack import ROUTER_SERVICE, select
-from shared.bus import DEFAULT_ROUTER
-from shared.paths import REPO_ROOT
+from shared.bus import DEFAULT_ROUTER, free_port
+from shared.paths import REPO_ROOT, unused_path
 
 log = logging.getLogger("mimic.up")
 #: Stopped after the others (the logger records the stack going down).
 STOP_LAST = ("logger",)
+#: The logger's grace at stop [s]: it compacts the recording before it exits.
+LOGGER_STOP_S = 90.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,12 +45,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--summary", default=None, help="summary JSON path (default runs/<session>_summary.json)")
     p.add_argument("--ready-timeout", type=float, default=90.0, help="seconds to wait for every service to come up")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (without --demo)")
+    p.add_argument(
+        "--beside",
+        action="store_true",
+        help="run beside a stack already up: a free loopback port and the first free session <session>-<n>",
+    )
     p.add_argument("--compose", default=None, help="compose file to read (default: the repo's docker-compose.yml)")
 
 
 def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
     out = run_dir / "demo_motion"
-    stack.start("motion", argv=["mimic", "demo-motion", str(out)])
+    stack.start("motion", argv=["mimic", "demo-motion", str(out)], service=False)
     while stack.running("motion"):
         time.sleep(0.1)
     stack.sup.poll()
@@ -70,22 +78,43 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
-    stack = LocalStack(
-        session,
-        args.endpoint,
-        out=sys.stdout,
-        restart=args.restart,
-        compose=Path(args.compose) if args.compose else None,
-    )
-    specs = select(stack.spec, args.profile, args.only)
+    endpoint = args.endpoint
+    if args.beside:
+        endpoint, session = f"tcp/127.0.0.1:{free_port()}", _free_session(run_dir, session)
+    try:
+        stack = LocalStack(
+            session,
+            endpoint,
+            out=sys.stdout,
+            restart=args.restart,
+            compose=Path(args.compose) if args.compose else None,
+        )
+    except (SessionBusyError, ValueError, OSError) as exc:
+        log.error("%s", exc)
+        return 1
+    try:
+        specs = select(stack.spec, args.profile, args.only)
+    except ValueError as exc:
+        stack.close()
+        log.error("%s", exc)
+        return 1
     names = [s.name for s in specs if s.name != ROUTER_SERVICE]
+    # Never overwrite an earlier recording of the session: the next free runs/<session>[-n].rrd.
+    rrd = unused_path(run_dir / f"{session}.rrd")
+    extra = {"logger": ["--rrd", str(rrd)]}
     monitor = None
     code = 0
     try:
         stack.start_router()
         monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
-        stack.start_all(names, timeout=args.ready_timeout, stop=stop)
-        log.info("stack up on session %r: %s", session, ", ".join(s.name for s in specs))
+        stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
+        log.info(
+            "stack up on session %r, router %s: %s (recording %s)",
+            session,
+            endpoint,
+            ", ".join(s.name for s in specs),
+            rrd if "logger" in names else "none",
+        )
 
         if args.demo:
             clips = [Path(c) for c in args.clips] if args.clips else _demo_clips(run_dir, stack)
@@ -94,7 +123,20 @@ def main(args: argparse.Namespace) -> int:
                     break
                 name = f"play:{clip.stem}"[:24]
                 stack.start(
-                    name, argv=["mimic", "publish", str(clip), "--rate", str(args.rate), "--wait-subscriber", "10"]
+                    name,
+                    # One status per clip (publish/<clip>), not the last clip's counts as the run's.
+                    argv=[
+                        "mimic",
+                        "publish",
+                        str(clip),
+                        "--rate",
+                        str(args.rate),
+                        "--wait-subscriber",
+                        "10",
+                        "--instance",
+                        _instance(clip.stem),
+                    ],
+                    service=False,
                 )
                 while stack.running(name) and not stop.is_set():
                     stack.sup.poll()
@@ -110,20 +152,27 @@ def main(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         code = 1
     finally:
-        codes = stack.stop(last=STOP_LAST)
+        codes = stack.stop(last=STOP_LAST, timeouts={"logger": LOGGER_STOP_S})
         summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
             monitor.close()
         stack.close()
         summary["exit_codes"] = codes
         summary["session"] = session
-        rrd = run_dir / f"{session}.rrd"
         summary["recording"] = str(rrd) if rrd.exists() else None
         path = Path(args.summary) if args.summary else run_dir / f"{session}_summary.json"
         path.write_text(json.dumps(summary, indent=2))
         if args.demo or args.summary:
             _print_summary(summary, path)
     return code
+
+
+def _free_session(run_dir: Path, session: str) -> str:
+    """First ``<session>-<n>`` (n = 2, 3, ...) that no live stack holds."""
+    n = 2
+    while SessionLock(run_dir, f"{session}-{n}").owner() is not None:
+        n += 1
+    return f"{session}-{n}"
 
 
 def _joint_limits():
@@ -136,6 +185,24 @@ def _joint_limits():
     except Exception as exc:  # the summary still works without limit checks
         log.warning("joint limits unavailable for the summary: %s", exc)
         return None, None
+
+
+#: What the summary's figures mean (printed under it: a newcomer must not read "dropped" as lost).
+LEGEND = (
+    "",
+    "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
+    "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
+    "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
+    "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
+    "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
+    "error: simulated robot vs its targets, last state of each frame. max includes the start of each clip",
+    "  (the robot moving from its pose onto the operator's); p95 is the figure for the motion itself.",
+)
+
+
+def _instance(stem: str) -> str:
+    """A bus instance id (one key chunk) from a clip name."""
+    return "".join(c if c.isalnum() or c in "-_" else "-" for c in stem)[:32] or "clip"
 
 
 def _print_summary(s: dict, path: Path) -> None:
@@ -157,13 +224,16 @@ def _print_summary(s: dict, path: Path) -> None:
         f" ({lat.get('samples')} frames)"
     )
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
-    lines.append(f"wrist error: mean {f(we.get('mean'), ' cm')}, max {f(we.get('max'), ' cm')}")
-    lines.append(f"elbow error: mean {f(ee.get('mean'), ' cm')}, max {f(ee.get('max'), ' cm')}")
+    for name, e in (("wrist", we), ("elbow", ee)):
+        lines.append(
+            f"{name} error: mean {f(e.get('mean'), ' cm')}, p95 {f(e.get('p95'), ' cm')}, max {f(e.get('max'), ' cm')}"
+        )
     lines.append(
         f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"
         f" simulated {s.get('max_joint_limit_excess_rad', 0.0):.2e} rad"
     )
     lines.append(f"recording: {s.get('recording')}")
+    lines.extend(LEGEND)
     lines.append(f"summary: {path}")
     # The summary is the command's product for the user, so it goes to stdout, not the log.
     sys.stdout.write("\n".join(lines) + "\n")

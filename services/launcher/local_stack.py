@@ -33,7 +33,16 @@ from typing import IO
 
 import zenoh
 
-from services.launcher.stack import COMPOSE_FILE, REPO_ROOT, ROUTER_SERVICE, forget_state, load_stack, local_environment
+from services.launcher.session_lock import SessionLock
+from services.launcher.stack import (
+    COMPOSE_FILE,
+    REPO_ROOT,
+    ROUTER_SERVICE,
+    forget_state,
+    load_stack,
+    local_command,
+    local_environment,
+)
 from services.launcher.supervisor import Supervisor
 from shared.bus import bus_args, open_session, wait_for_endpoint
 from shared.keys import Keys
@@ -97,8 +106,11 @@ class LocalStack:
         self._alive_sub = None
         self._lock = threading.Lock()
         self.alive: set[tuple[str, str]] = set()  # (service, instance) holding a token now
+        # Before any file is touched: a live stack of this session keeps its files (SessionBusyError).
+        self.session_lock = SessionLock(self.cwd / "runs", session)
+        self.session_lock.acquire()
         # A new stack is a new operator session: no state from an earlier run.
-        for path in forget_state(self.spec.values(), self.cwd):
+        for path in forget_state(self.spec.values(), self.cwd, session):
             log.info("new stack: removed the previous service state %s", path)
 
     # ------------------------------------------------------------------ commands
@@ -106,7 +118,7 @@ class LocalStack:
     def command(self, name: str, extra: list[str] | None = None) -> tuple[list[str], dict[str, str]]:
         """argv and environment of compose service ``name`` on this router and session."""
         spec = self.spec[name]
-        argv = [*mimic_argv(spec.command), *(extra or [])]
+        argv = [*mimic_argv(local_command(spec.command)), *(extra or [])]
         if name != ROUTER_SERVICE and self.status_period is not None:
             argv += ["--status-period", str(self.status_period)]
         return argv, local_environment(spec, self.endpoint, self.session)
@@ -116,12 +128,18 @@ class LocalStack:
         return {"MIMIC_SESSION": self.session, "MIMIC_CONNECT": self.endpoint}
 
     def start(
-        self, name: str, extra: list[str] | None = None, argv: list[str] | None = None, env: dict | None = None
+        self,
+        name: str,
+        extra: list[str] | None = None,
+        argv: list[str] | None = None,
+        env: dict | None = None,
+        service: bool = True,
     ) -> float:
         """Start a service; again with no arguments: the same command. Returns the monotonic start time [s].
 
         ``name`` is a compose service unless ``argv`` (a full command line; ``mimic ...`` allowed)
-        is given; such commands get :meth:`client_env` unless ``env`` is given.
+        is given; such commands get :meth:`client_env` unless ``env`` is given. ``service=False``:
+        a one-shot job (a clip player), whose exit 0 is logged as its success, not as news.
         """
         if argv is None:
             if name in self.argv and extra is None:
@@ -132,11 +150,21 @@ class LocalStack:
         env = env if env is not None else self.client_env()
         self.argv[name], self.env[name] = argv, env
         t = time.monotonic()
-        self.sup.start(name, argv, env, restart=self.restart and name in self.spec)
+        self.sup.start(name, argv, env, restart=self.restart and name in self.spec, service=service)
         return t
 
     def start_router(self, timeout: float = ROUTER_TIMEOUT_S) -> None:
-        """Start the router, wait until it accepts connections, then watch liveliness through it."""
+        """Start the router, wait until it accepts connections, then watch liveliness through it.
+
+        Raises:
+            RuntimeError: something already listens on the endpoint (another stack's router: its
+                port check and liveliness would pass for ours, and our services would join it).
+        """
+        if wait_for_endpoint(self.endpoint, 0.0):
+            raise RuntimeError(
+                f"router endpoint {self.endpoint} is busy (another mimic up?): stop it, or pass a free "
+                "--endpoint tcp/127.0.0.1:PORT and another --session (mimic up --beside picks both)"
+            )
         self.start(ROUTER_SERVICE)
         if not wait_for_endpoint(self.endpoint, timeout):
             raise RuntimeError(f"router not listening on {self.endpoint} after {timeout:.0f} s\n{self.output()}")
@@ -226,8 +254,12 @@ class LocalStack:
         text = self._log.getvalue() if self._log is not None else ""
         return text if tail is None else text[-tail:]
 
-    def stop(self, last: Iterable[str] = ("logger",), timeout: float = 8.0) -> dict[str, int | None]:
+    def stop(
+        self, last: Iterable[str] = ("logger",), timeout: float = 8.0, timeouts: dict[str, float] | None = None
+    ) -> dict[str, int | None]:
         """Stop every child (reverse start order, ``last`` and the router at the end); exit codes by name.
+
+        ``timeouts``: per-child grace before SIGKILL [s] (e.g. the logger compacting its recording).
 
         The stack's session (:attr:`bus`) stays open, so observers keep what the services said
         while stopping (their last status); :meth:`close` closes it.
@@ -235,8 +267,10 @@ class LocalStack:
         tail = [*last, ROUTER_SERVICE]
         order = [n for n in reversed(self.sup.children) if n not in tail]
         order += [n for n in tail if n in self.sup.children]
-        codes = {n: self.sup.stop(n, timeout) for n in order}
-        forget_state(self.spec.values(), self.cwd)  # the stack's state lives as long as the stack
+        codes = {n: self.sup.stop(n, (timeouts or {}).get(n, timeout)) for n in order}
+        if self.session_lock.held:
+            forget_state(self.spec.values(), self.cwd, self.session)  # the stack's state lives as long as the stack
+            self.session_lock.release()
         return codes
 
     def close(self, last: Iterable[str] = ("logger",), timeout: float = 8.0) -> dict[str, int | None]:

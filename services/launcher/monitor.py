@@ -92,7 +92,11 @@ class StackMonitor:
             }
 
         def stats(v: list[float]) -> dict:
-            return {"mean": float(np.mean(v)) * 100 if v else None, "max": float(np.max(v)) * 100 if v else None}
+            return {
+                "mean": float(np.mean(v)) * 100 if v else None,
+                "p95": float(np.percentile(v, 95)) * 100 if v else None,
+                "max": float(np.max(v)) * 100 if v else None,
+            }
 
         return {
             "frames_published": self.frames_seen,

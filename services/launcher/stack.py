@@ -86,6 +86,9 @@ def select(
 ) -> list[ServiceSpec]:
     """Services to run: those without a profile plus the named profiles' (router first)."""
     profiles = set(profiles or [])
+    known = sorted({p for s in stack.values() for p in s.profiles})
+    if profiles - set(known):
+        raise ValueError(f"unknown profile(s) {sorted(profiles - set(known))}; known: {', '.join(known)}")
     chosen = [s for s in stack.values() if not s.profiles or profiles & set(s.profiles)]
     if only:
         unknown = set(only) - set(stack)
@@ -94,6 +97,20 @@ def select(
         chosen = [s for s in stack.values() if s.name in only or s.name == ROUTER_SERVICE]
     chosen.sort(key=lambda s: s.name != ROUTER_SERVICE)
     return chosen
+
+
+#: Host part of a "bind every interface" address in a compose command (containers need it).
+ALL_INTERFACES = "0.0.0.0:"
+
+
+def local_command(command: list[str]) -> list[str]:
+    """The compose command as run locally: addresses binding every interface moved to loopback.
+
+    In a container ``0.0.0.0`` is reachable only through the ports compose publishes (on
+    127.0.0.1); run on the host it would expose an unauthenticated port (the UDP ingest) to the
+    network, against the threat model. A user who wants that starts the service by hand.
+    """
+    return ["127.0.0.1:" + c[len(ALL_INTERFACES) :] if c.startswith(ALL_INTERFACES) else c for c in command]
 
 
 def local_environment(spec: ServiceSpec, endpoint: str, session: str | None = None) -> dict[str, str]:
@@ -114,7 +131,7 @@ def local_environment(spec: ServiceSpec, endpoint: str, session: str | None = No
 STATE_FLAGS = ("--calibration-state",)
 
 
-def forget_state(specs: Iterable[ServiceSpec], root: Path) -> list[Path]:
+def forget_state(specs: Iterable[ServiceSpec], root: Path, session: str | None = None) -> list[Path]:
     """Delete the state files (``STATE_FLAGS``) of the given services; returns those removed.
 
     A new stack is a new operator session: the retarget calibration must come from that
@@ -122,6 +139,13 @@ def forget_state(specs: Iterable[ServiceSpec], root: Path) -> list[Path]:
     crashed retarget comes back with the calibration it had. Relative paths are from ``root``.
     """
     removed = []
+    if session is not None:  # files services derive from the session themselves (the sim's last state)
+        from services.sim.resume import session_state_file
+
+        path = root / session_state_file(session)
+        if path.exists():
+            path.unlink()
+            removed.append(path)
     for spec in specs:
         for flag, value in zip(spec.command, spec.command[1:]):
             if flag in STATE_FLAGS and (root / value).exists():

@@ -72,6 +72,8 @@ class Child:
     exit_codes: list[int] = field(default_factory=list)
     next_start: float = 0.0
     stopping: bool = False
+    #: a long-running service (an exit nobody asked for is news) rather than a one-shot job
+    service: bool = True
 
 
 class Supervisor:
@@ -90,8 +92,11 @@ class Supervisor:
         self._lock = threading.Lock()
         self._width = 8
 
-    def start(self, name: str, argv: list[str], env: dict[str, str], restart: bool = False) -> Child:
-        child = Child(name, argv, env, restart)
+    def start(
+        self, name: str, argv: list[str], env: dict[str, str], restart: bool = False, service: bool = True
+    ) -> Child:
+        """Start ``argv`` as child ``name``; ``service=False`` for a one-shot job whose exit 0 is its success."""
+        child = Child(name, argv, env, restart, service=service)
         self.children[name] = child
         self._width = max(self._width, len(name))
         self._spawn(child)
@@ -145,8 +150,23 @@ class Supervisor:
                 delay = min(self.backoff[1], self.backoff[0] * 2 ** min(child.restarts, 10))
                 child.next_start = now + delay
                 log.warning("%s exited with %d; restart in %.1f s", child.name, code, delay)
+            elif code == 0 and not child.service:
+                log.info("%s finished", child.name)
+            elif code == 0:
+                # Not a crash: the process was stopped from outside (SIGTERM/SIGINT, e.g. replaced by
+                # hand) and shut down cleanly. The stack goes on without it.
+                log.warning(
+                    "%s stopped (exit 0) without being asked by this stack: stopped from outside? the stack runs "
+                    "on without it%s",
+                    child.name,
+                    ""
+                    if child.name != "solver"
+                    else " (the sim holds its last pose until a followed solver publishes again: mimic follow ID)",
+                )
             else:
-                log.warning("%s exited with %d", child.name, code)
+                log.warning(
+                    "%s exited with %d (crashed: see its last lines above; --restart restarts it)", child.name, code
+                )
         return exited
 
     def alive(self, name: str) -> bool:

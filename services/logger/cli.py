@@ -13,9 +13,12 @@ import logging
 from pathlib import Path
 
 from shared.bus import add_bus_args
+from shared.paths import unused_path
 from shared.robot.profile import DEFAULT_PROFILE
 
 log = logging.getLogger("mimic.log")
+#: Batcher flush period when the recording goes only to a file [s] (Rerun's default: 0.2 s).
+FILE_FLUSH_TICK_S = 2.0
 
 
 def _vec3(text: str) -> tuple[float, float, float]:
@@ -27,11 +30,35 @@ def _vec3(text: str) -> tuple[float, float, float]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("recording")
-    g.add_argument("--rrd", type=Path, default=None, help="recording file (default runs/<session>.rrd)")
+    g.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="recording file (default runs/<session>.rrd); an existing file is kept and the recording goes to "
+        "the first free <name>-<n>.rrd, unless --overwrite",
+    )
+    g.add_argument("--overwrite", action="store_true", help="replace an existing --rrd file")
+    g.add_argument(
+        "--no-compact",
+        action="store_true",
+        help="leave the recording as logged (many small chunks) instead of compacting it when it closes",
+    )
+    g.add_argument(
+        "--id",
+        default=None,
+        help="instance id on the bus (default 'main', 'viewer' with --serve: a viewer started beside a stack is "
+        "not mistaken for the stack's logger)",
+    )
     g.add_argument("--spawn", action="store_true", help="also spawn a native Rerun viewer (needs a display)")
     g.add_argument("--serve", action="store_true", help="also serve gRPC + the web viewer for a remote browser")
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve / --spawn")
     g.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve")
+    g.add_argument(
+        "--bind-host",
+        default="127.0.0.1",
+        help="interface the --serve gRPC server (the recording's data) listens on; it is unauthenticated, so "
+        "loopback unless asked (0.0.0.0: every interface, for a browser on another machine)",
+    )
     g.add_argument(
         "--advertise-host",
         default="localhost",
@@ -57,14 +84,19 @@ def open_recording(args: argparse.Namespace, rrd: Path):
 
     from services.logger.rerun_logger import blueprint
 
-    rec = rr.RecordingStream("mimic")
+    live = bool(args.spawn or args.serve or args.connect_viewer)
+    # Rerun's default batcher flushes every 0.2 s: with ~120 entities logged at 30-60 Hz that is a
+    # chunk of ~3 rows per entity and tick (a demo recording: 4 845 chunks, "over-chunked", slow to
+    # open). Written only to a file, rows wait up to FILE_FLUSH_TICK_S (what a crash can lose).
+    batcher = None if live else rr.ChunkBatcherConfig(flush_tick=FILE_FLUSH_TICK_S, flush_num_bytes=8 << 20)
+    rec = rr.RecordingStream("mimic", batcher_config=batcher)
     rec.send_recording_name(getattr(args, "session", "mimic"))
     sinks: list = [rr.FileSink(str(rrd))]
     if args.spawn:
         rr.spawn(port=args.grpc_port, connect=False)
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{args.grpc_port}/proxy"))
     elif args.serve:
-        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
+        sinks.append(rr.GrpcServerSink(bind_ip=args.bind_host, port=args.grpc_port))
     if args.connect_viewer:
         sinks.append(rr.GrpcSink(args.connect_viewer))
     bp = blueprint(args.operator_offset)
@@ -85,6 +117,8 @@ def main(args: argparse.Namespace) -> int:
     from shared.robot.profile import ProfileError
 
     rrd = args.rrd or Path("runs") / f"{args.session}.rrd"
+    if not args.overwrite:
+        rrd = unused_path(rrd)
     try:
         rrd.parent.mkdir(parents=True, exist_ok=True)
         visual = None if args.no_meshes else RobotVisual(args.robot)
@@ -101,7 +135,8 @@ def main(args: argparse.Namespace) -> int:
         follow=args.follow,
     )
     logger.setup()
-    with ServiceRunner("logger", args) as svc:
+    instance = args.id or ("viewer" if args.serve else "main")
+    with ServiceRunner("logger", args, instance=instance) as svc:
         node = LoggerNode(logger, svc, queue_size=args.queue)
         svc.log.info("recording %s to %s", svc.keys.everything, rrd)
         while not svc.stop_event.wait(0.5):
@@ -113,4 +148,8 @@ def main(args: argparse.Namespace) -> int:
     rec.flush()
     rec.disconnect()
     log.info("recording written: %s", rrd)
+    if not args.no_compact:
+        from services.logger.compact import compact
+
+        compact(rrd)
     return 0

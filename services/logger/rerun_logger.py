@@ -1,8 +1,10 @@
 """Message -> Rerun translation: the pure core of the logger (no bus).
 
 :meth:`RerunLogger.step` takes one bus sample (key, payload, receive time), decodes
-it by its type tag and logs it on two timelines: ``stamp`` (the mocap source time,
-``hdr.stamp`` [s]) and ``seq`` (``hdr.seq``). Entity layout (robot base = pelvis
+it by its type tag and logs it on three timelines: ``session`` (seconds since the first
+message, from ``hdr.t0``: keeps increasing across clips and source restarts; the one to
+browse a whole run on), ``stamp`` (the mocap source time, ``hdr.stamp`` [s]) and ``seq``
+(``hdr.seq``), which both start again with each clip. Entity layout (robot base = pelvis
 frame, x forward, y left, z up):
 
 * ``world/operator/skeleton`` (LineStrips3D) and ``world/operator/joints`` (Points3D):
@@ -79,9 +81,13 @@ def blueprint(operator_offset: Iterable[float] = (0.0, 1.0, 0.0)) -> rrb.Bluepri
                 rrb.TimeSeriesView(origin="metrics/solve_ms", name="solve time [ms]"),
                 rrb.TimeSeriesView(origin="metrics/residual", name="residual per level"),
                 rrb.TimeSeriesView(origin="metrics/drops", name="drops"),
+                rrb.TimeSeriesView(origin="metrics/rejected", name="rejected inputs"),
+                rrb.TextLogView(origin="status", name="service problems"),
             ),
             column_shares=[3, 2],
         ),
+        # The monotonic timeline: stamp/seq start again with each clip and would overlay them.
+        rrb.TimePanel(state="collapsed", timeline="session"),
         collapse_panels=True,
     )
 
@@ -125,6 +131,9 @@ class RerunLogger:
         self._residual_levels: dict[str, int] = {}
         self._next_due: dict[str, float] = {}
         self._time = (0, 0.0)
+        self._t0_first: int | None = None  # t0 [ns] of the first message with a header
+        self._session_s = 0.0  # "session" timeline: seconds of bus time since that message
+        self._said: dict[str, tuple[str, str]] = {}  # service -> (state, last_error) last put in the text log
         self._setup_done = False
 
     # ------------------------------------------------------------------ setup
@@ -258,7 +267,7 @@ class RerunLogger:
             return
         # One row, one series per target (NaN where the target is missing or invalid).
         err = np.array([100.0 * errors.get(name, np.nan) for name in TARGET_NAMES])
-        self._set_time(msg.hdr.seq, msg.hdr.stamp)
+        self._set_hdr(msg.hdr)
         self.rec.log("metrics/error_cm", rr.Scalars(err))
 
     def log_skipped(self, skipped: int) -> None:
@@ -268,10 +277,21 @@ class RerunLogger:
 
     # ------------------------------------------------------------------ helpers
 
+    def _set_hdr(self, hdr) -> None:
+        """Timelines of a message header: ``seq``, ``stamp`` and the monotonic ``session``."""
+        if hdr.t0 > 0:
+            if self._t0_first is None:
+                self._t0_first = hdr.t0
+            # seq and stamp start again with every clip (the demo's two clips would lie on top of
+            # each other); the bus-entry clock t0 does not, so "session" keeps increasing.
+            self._session_s = max(self._session_s, (hdr.t0 - self._t0_first) * 1e-9)
+        self._set_time(hdr.seq, hdr.stamp)
+
     def _set_time(self, seq: int, stamp: float) -> None:
         self._time = (seq, stamp)
         self.rec.set_time("seq", sequence=int(seq))
         self.rec.set_time("stamp", duration=float(stamp))
+        self.rec.set_time("session", duration=self._session_s)
 
     def _latency(self, stream: str, t0: int, recv_ns: int) -> None:
         if t0 > 0:
@@ -304,7 +324,7 @@ class RerunLogger:
     # ------------------------------------------------------------------ per message type
 
     def _human(self, msg: HumanFrame, recv_ns: int) -> None:
-        self._set_time(msg.hdr.seq, msg.hdr.stamp)
+        self._set_hdr(msg.hdr)
         strips = []
         for chain in SKELETON_CHAINS:
             strip: list[np.ndarray] = []
@@ -324,7 +344,7 @@ class RerunLogger:
         self._latency("mocap", msg.hdr.t0, recv_ns)
 
     def _targets_msg(self, msg: TaskTargets, recv_ns: int) -> None:
-        self._set_time(msg.hdr.seq, msg.hdr.stamp)
+        self._set_hdr(msg.hdr)
         self._scorer.add_targets(msg)
         for w in WRISTS:
             t = msg.targets.get(w)
@@ -336,7 +356,7 @@ class RerunLogger:
         self._latency("targets", msg.hdr.t0, recv_ns)
 
     def _command(self, msg: JointCommand, recv_ns: int) -> None:
-        self._set_time(msg.hdr.seq, msg.hdr.stamp)
+        self._set_hdr(msg.hdr)
         sid = msg.solver_id
         if msg.residuals:
             n = len(msg.residuals)
@@ -352,7 +372,7 @@ class RerunLogger:
 
     def _state(self, msg: RobotState, recv_ns: int) -> None:
         self.follow = msg.solver_id
-        self._set_time(msg.hdr.seq, msg.hdr.stamp)
+        self._set_hdr(msg.hdr)
         pts = np.array([p.p for p in msg.frames.values()], dtype=np.float32).reshape(-1, 3)
         self.rec.log("world/robot/achieved", rr.Points3D(pts))
         if msg.holding != self._holding:
@@ -366,3 +386,11 @@ class RerunLogger:
         self._set_time(*self._time)
         name = msg.service if msg.instance == "main" else f"{msg.service}_{msg.instance}"
         self.rec.log(f"metrics/drops/{name}", rr.Scalars([float(msg.counts.get("dropped", 0))]))
+        self.rec.log(f"metrics/rejected/{name}", rr.Scalars([float(msg.counts.get("rejected", 0))]))
+        # A service that is not "ok" (e.g. retarget throwing frames away while uncalibrated) says
+        # why in the viewer's log panel, once per change, not only in its process log.
+        said = (msg.state, msg.last_error)
+        if msg.state != "ok" and said != self._said.get(name):
+            level = rr.TextLogLevel.WARN if msg.state == "degraded" else rr.TextLogLevel.INFO
+            self.rec.log(f"status/{name}", rr.TextLog(f"{name} {msg.state}: {msg.last_error or '-'}", level=level))
+        self._said[name] = said

@@ -52,6 +52,7 @@ def main(args: argparse.Namespace) -> int:
                     svc.status.extra["queued"] = float(rec.queued)
                     svc.status.extra["written"] = float(rec.written)
                     svc.status.extra["received"] = float(rec.received)
+                    svc.status.extra["frames_missing"] = float(rec.gaps.missing)
             except Exception as exc:  # a full disk must be visible, not silent
                 svc.status.error(f"writer failed: {type(exc).__name__}: {exc}")
                 svc.stop_event.set()
@@ -72,7 +73,15 @@ def main(args: argparse.Namespace) -> int:
         except Exception as exc:  # disk full / removed: report what was written, fail loudly
             svc.status.error(f"closing {out} failed: {type(exc).__name__}: {exc}")
             counts = {"received": rec.received, "written": rec.written, "max_queue": rec.max_queue}
+        counts["frames_missing"] = rec.gaps.missing
         svc.status.extra.update({k: float(v) for k, v in counts.items()})
-        svc.log.info("recorded %d messages (%d received) to %s", counts["written"], counts["received"], out)
+        svc.log.info(
+            "recorded %d messages (%d received) to %s; %d mocap frame(s) lost on the bus before the recorder "
+            "(seq gaps)",
+            counts["written"],
+            counts["received"],
+            out,
+            counts["frames_missing"],
+        )
     emit_json({"out": str(out), **counts}, indent=None)
     return 0 if counts["written"] == counts["received"] else 1

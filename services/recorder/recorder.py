@@ -14,6 +14,7 @@ import time
 from collections import deque
 from pathlib import Path
 
+from services.recorder.gaps import SeqGaps
 from services.recorder.mcap_io import RecordingWriter
 
 
@@ -38,6 +39,8 @@ class Recorder:
         self._last_flush = time.monotonic()
         self.received = 0
         self.max_queue = 0
+        #: mocap frames lost on the bus before they reached us (seq gaps), which "written = received" cannot see
+        self.gaps = SeqGaps()
 
     @property
     def written(self) -> int:
@@ -75,6 +78,7 @@ class Recorder:
         while self._queue and n < max_items:
             key, payload, recv_ns, pub_ns = self._queue.popleft()
             self.writer.write(key, payload, recv_ns, pub_ns)
+            self.gaps.step(key, payload)
             n += 1
         now = time.monotonic()
         if now - self._last_flush >= self.flush_period:
@@ -91,6 +95,11 @@ class Recorder:
     def close(self) -> dict[str, int]:
         """Drain, write the footer, close; returns the final counts."""
         self.drain()
-        counts = {"received": self.received, "written": self.written, "max_queue": self.max_queue}
+        counts = {
+            "received": self.received,
+            "written": self.written,
+            "max_queue": self.max_queue,
+            "frames_missing": self.gaps.missing,
+        }
         self.writer.close(summary={k: str(v) for k, v in counts.items()})
         return counts

@@ -19,6 +19,7 @@ from services.recorder.mcap_io import read_recording
 from services.recorder.replay import ReplayPlan
 from shared.bus import ServiceRunner, add_bus_args
 from shared.keys import DEFAULT_SESSION, Keys
+from shared.messages import restamp
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.replay")
@@ -35,6 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     # --session (from the bus flags) means "republish into this session"; unset keeps the recorded one.
     p.set_defaults(session=None)
+    p.add_argument(
+        "--keep-t0",
+        action="store_true",
+        help="publish headers with their recorded t0 (default: t0 = now, the time the message enters the bus "
+        "again, so latency is measured and a running stack takes the replay as a restarted source)",
+    )
     p.add_argument("--start-delay", type=float, default=0.5, help="wait for subscribers to be matched first [s]")
 
 
@@ -63,12 +70,16 @@ def main(args: argparse.Namespace) -> int:
                 pub = pubs[due.key] = svc.session.declare_publisher(
                     due.key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
                 )
+            # Re-stamped before the wait (t0 = the due wall-clock time), so the re-encoding does not
+            # delay the publication itself.
+            wait = t_start + due.offset - time.monotonic() if due.offset > 0 else 0.0
+            data = due.data if args.keep_t0 else restamp(due.data, time.time_ns() + int(max(wait, 0.0) * 1e9))
             if due.offset > 0:
                 wait = t_start + due.offset - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
                 late.append(max(0.0, time.monotonic() - t_start - due.offset))
-            pub.put(due.data)
+            pub.put(data)
             svc.status.published("replay")
             n += 1
         elapsed = time.monotonic() - t_start

@@ -30,6 +30,8 @@ from shared.messages import HumanFrame, MessageError, parse_query
 
 #: Frames kept waiting for the worker before the oldest is skipped.
 FRAME_QUEUE = 32
+#: While frames are rejected as uncalibrated, say so (log warning) at most this often [s].
+UNCALIBRATED_LOG_PERIOD = 2.0
 
 
 def _decode_map(payload: bytes) -> dict:
@@ -57,6 +59,8 @@ class RetargetNode:
         self.save_calibration = list(save_calibration)
         self._lock = threading.Lock()
         self._step_us: deque[float] = deque(maxlen=2000)
+        self._uncalibrated = 0  # frames rejected as uncalibrated since the last warning
+        self._uncalibrated_logged = -float("inf")  # monotonic time of that warning [s]
         self._calibration_seen = retargeter.calibration
         self._pub = svc.publisher(svc.keys.targets)
         # Every frame is retargeted while we keep up; under overload (bursts faster than we can
@@ -87,8 +91,19 @@ class RetargetNode:
         if out is None:
             if reject is not None:
                 self.svc.status.reject(*reject)
+                if reject[0] == "uncalibrated":
+                    self._warn_uncalibrated(reject[1])
             return
         self.svc.publish(self._pub, out, stream="targets")
+
+    def _warn_uncalibrated(self, detail: str) -> None:
+        """Repeat, every UNCALIBRATED_LOG_PERIOD, that frames are being thrown away and why: a user
+        plugging in a source must not have to find the one warning of the first reject."""
+        self._uncalibrated += 1
+        now = time.monotonic()
+        if now - self._uncalibrated_logged >= UNCALIBRATED_LOG_PERIOD:
+            self.svc.log.warning("%d frame(s) rejected, not calibrated: %s", self._uncalibrated, detail)
+            self._uncalibrated, self._uncalibrated_logged = 0, now
 
     def _on_new_calibration(self, cal: Calibration | None) -> None:
         if cal is None:
@@ -143,6 +158,7 @@ class RetargetNode:
             calibrated = self.retargeter.calibration is not None
         for k, v in counts.items():
             st.extra[k] = float(v)
+        st.extra["calibrated"] = 1.0 if calibrated else 0.0
         st.state = "ok" if calibrated else "degraded"
 
 

@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="save the calibration used (e.g. from a calibration recording with --calibrate clip) for "
         "`mimic retarget --calibration FILE`",
     )
+    p.add_argument(
+        "--skeleton-map", default=None, help="BVH skeleton map / C3D marker map file (TOML/JSON), as mimic publish"
+    )
     add_retarget_options(p)
 
 
@@ -51,7 +54,7 @@ def main(args: argparse.Namespace) -> int:
     from shared.targets import SIDES, TARGET_NAMES
 
     try:
-        clip = load_clip(args.clip)
+        clip = load_clip(args.clip, skeleton_map=args.skeleton_map)
         frames = [clip.frame(i, seq=i + 1) for i in range(clip.n_frames)]
         config = config_from_args(args)
         r = Retargeter(config)

@@ -59,6 +59,13 @@ from shared.wrist_only import is_wrist_only
 
 log = logging.getLogger(__name__)
 
+#: What a source must send before it is retargeted (said with every ``uncalibrated`` reject).
+CALIBRATION_HINT = (
+    "auto-calibration takes the first frame with shoulder, elbow and wrist of both arms, arms hanging at rest "
+    "(one arm alone is accepted after 30 frames and mirrored); otherwise install one with "
+    "`mimic calibrate --file FILE` or start retarget with --calibration FILE"
+)
+
 
 @dataclass
 class RetargetConfig:
@@ -99,6 +106,11 @@ class RetargetConfig:
             (:class:`.orientation.ForearmOrientationMap`; needs ``elbow_placement="swivel"``, else it
             acts as "posture"). ``mimic retarget --elbow-placement mapped --orientation-reference rest``
             reproduces the paper.
+        source: the frame ``source`` to follow when several publish at once ("" = the first one
+            seen, until it is silent for ``source_timeout``); frames of the others are rejected as
+            ``other_source`` and each new one is named once in the log.
+        source_timeout: silence of the followed source [s] (frame ``t0`` clock) after which
+            another source is followed (only without ``source``).
         arm_length: operator arm length, shoulder to wrist [m], for sources without arm bones
             (wrist-only: VR controllers); they calibrate with :func:`.calibration.from_wrists`.
         upper_arms: publish ``TaskTargets.upper_arms`` (seed 004's operator upper-arm orientation
@@ -122,6 +134,8 @@ class RetargetConfig:
     one_arm_after: int = 30
     elbow_placement: str = ELBOW_PLACEMENTS[0]
     orientation_reference: str = ORIENTATION_REFERENCES[0]
+    source: str = ""
+    source_timeout: float = 1.0
     arm_length: float = DEFAULT_ARM_LENGTH
     upper_arms: bool = True
 
@@ -206,6 +220,9 @@ class Retargeter:
         self.calibration: Calibration | None = None
         self._recalibrate = calibration is None and self.config.auto_calibrate
         self._calib_tries = 0
+        self._ignored: set[str] = set()  # sources named once as ignored
+        self._source: str | None = None  # the followed source (kept across stream resets)
+        self._source_t0 = 0  # t0 [ns] of the followed source's last frame
         self._reset_stream()
         if calibration is not None:
             self.set_calibration(calibration)
@@ -215,7 +232,6 @@ class Retargeter:
     def _reset_stream(self) -> None:
         """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
         self._guard = SequenceGuard(resync_after=self.config.resync_after)
-        self._source: str | None = None
         self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
         self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
         self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
@@ -275,6 +291,31 @@ class Retargeter:
         self.rejects[reason] += 1
         self.last_reject = (reason, detail)
 
+    def _follows(self, frame: HumanFrame) -> bool:
+        """Whether ``frame`` comes from the source this retargeter follows (see ``RetargetConfig.source``).
+
+        Two sources on one key would otherwise make the robot jump between two operators every
+        frame; the others are rejected (``other_source``) and each is named once.
+        """
+        want = self.config.source
+        if want:
+            ok = frame.source == want
+        else:
+            silent = (frame.hdr.t0 - self._source_t0) * 1e-9 > self.config.source_timeout
+            ok = self._source is None or frame.source == self._source or silent
+            if ok and self._source is not None and frame.source != self._source:
+                log.info("source %r silent for over %.1f s", self._source, self.config.source_timeout)
+        if not ok:
+            if frame.source not in self._ignored:
+                self._ignored.add(frame.source)
+                log.warning(
+                    "ignoring frames of source %r: following %r (choose with `mimic retarget --source NAME`)",
+                    frame.source,
+                    want or self._source,
+                )
+            self._reject("other_source", f"source {frame.source!r} while following {want or self._source!r}")
+        return ok
+
     def _check_order(self, hdr: Header, source: str) -> bool:
         verdict = self._guard.check(hdr, source)
         if verdict.restarted:
@@ -295,12 +336,15 @@ class Retargeter:
         """
         self.last_reject = None
         hdr = frame.hdr
+        if not self._follows(frame):
+            return None
         if self._source is not None and frame.source != self._source:
             # Another clip or device: its seq and clock start afresh, which is not disorder.
-            log.info("new source %r (was %r): new stream", frame.source, self._source)
+            log.info("following source %r (was %r): new stream", frame.source, self._source)
             self.counts["new_source"] += 1
             self._reset_stream()
         self._source = frame.source
+        self._source_t0 = hdr.t0
         if not self._check_order(hdr, frame.source):
             return None
         last_stamp = self._guard.last_stamp(frame.source)
@@ -320,10 +364,10 @@ class Retargeter:
                 dt = None
             except CalibrationError as exc:
                 if self.calibration is None:
-                    self._reject("uncalibrated", f"waiting for a rest frame with valid arm bones: {exc}")
+                    self._reject("uncalibrated", f"{exc}; {CALIBRATION_HINT}")
                     return None
         if self.calibration is None:
-            self._reject("uncalibrated", "no calibration (give one or enable auto_calibrate)")
+            self._reject("uncalibrated", f"no calibration and auto-calibration is off; {CALIBRATION_HINT}")
             return None
         if not self._rot_map:
             self._posture_maps(frame)

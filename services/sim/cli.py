@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from pathlib import Path
 
 # Software GL (llvmpipe) would otherwise take every core away from the physics loop.
 os.environ.setdefault("LP_NUM_THREADS", "1")
@@ -61,6 +62,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lockstep-dt", type=float, default=0.01, help="simulated time per command in lock-step [s]")
     g.add_argument("--state-rate", type=float, default=200.0, help="RobotState rate in real time [Hz]")
     g.add_argument(
+        "--state-file",
+        default="auto",
+        help="joint positions kept for a restart: loaded at start when present, rewritten while running "
+        "('auto': runs/<session>_sim_state.json; 'none': off)",
+    )
+    g.add_argument(
         "--state-on-command",
         action="store_true",
         help="realtime: also publish RobotState right after each applied command (latency benches)",
@@ -76,6 +83,7 @@ def main(args: argparse.Namespace) -> int:
     # display; without --render no GL at all, so no OpenGL library is loaded (or missed) in vain.
     os.environ.setdefault("MUJOCO_GL", "egl" if args.render else "disable")
     from services.sim.node import run
+    from services.sim.resume import load_state, session_state_file
     from services.sim.sim_core import SimCore
     from shared.keys import Keys
     from shared.robot.profile import ProfileError
@@ -96,6 +104,13 @@ def main(args: argparse.Namespace) -> int:
             )
         else:
             core = SimCore(args.robot, config)
+        if args.state_file == "auto":
+            args.state_file = session_state_file(args.session)
+        if args.state_file != "none" and hasattr(core, "resume"):
+            q = load_state(Path(args.state_file), list(core.joint_names))
+            if q is not None:
+                core.resume(q)
+                log.info("resumed from the last state in %s (not the rest pose)", args.state_file)
     except (ProfileError, ValueError, KeyError) as exc:
         log.error("%s", exc)
         return 2

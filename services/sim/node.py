@@ -23,6 +23,7 @@ from pathlib import Path
 import msgpack
 
 from services.sim.render import BackgroundFrameWriter, FrameWriter, open_renderer
+from services.sim.resume import save_state
 from services.sim.sim_core import SimCore
 from shared.bus import ServiceRunner
 from shared.keys import Keys
@@ -30,6 +31,10 @@ from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
+#: How often the joint positions are written for a restart [s].
+STATE_SAVE_PERIOD = 0.25
+#: Shortest interval between two "velocity past its limit" warnings [s].
+VELOCITY_LOG_PERIOD = 5.0
 #: Commands queued for the lock-step clock before the oldest is dropped.
 LOCKSTEP_QUEUE = 10000
 
@@ -87,6 +92,10 @@ class SimNode:
         self._follow_key = svc.keys.command(self.follow)
         self.ignored = 0
         self.overruns = 0
+        self.state_file: Path | None = None  # where keep_state writes (None: off)
+        self._next_save = 0.0
+        self._velocity_excess_said = 0  # velocity_excess_steps at the last warning
+        self._velocity_said_at = -float("inf")  # monotonic time of that warning [s]
         self._rejects_seen: dict[str, int] = {}
         self._pub = svc.publisher(svc.keys.sim_state)
         self.commands = svc.subscribe_latest(
@@ -145,6 +154,17 @@ class SimNode:
         if self.renderer is not None:
             self.renderer.maybe_render(self.core.robot.data)
 
+    def keep_state(self, now: float, force: bool = False) -> None:
+        """Write the joint positions to the state file every STATE_SAVE_PERIOD (see :mod:`.resume`)."""
+        if self.state_file is None or (not force and now < self._next_save):
+            return
+        self._next_save = now + STATE_SAVE_PERIOD
+        try:
+            save_state(self.state_file, list(self.core.joint_names), self.core.q)
+        except OSError as exc:
+            self.svc.status.error(f"cannot write the sim state file {self.state_file}: {exc}")
+            self.state_file = None
+
     def update_status(self) -> None:
         """Refresh the status state and service-specific figures."""
         st = self.svc.status
@@ -161,6 +181,23 @@ class SimNode:
                 "max_contacts": float(self.core.max_contacts),
             }
         )
+        excess = getattr(c, "velocity_excess_steps", None)  # the wheeled core (seed 002) does not count it
+        if excess is None:
+            return
+        st.extra["velocity_excess_steps"] = float(excess)
+        st.extra["worst_velocity_ratio"] = c.worst_velocity_ratio
+        if excess > self._velocity_excess_said:
+            # The robot, not a command, went past a limit: say it (status + log), at most every 5 s.
+            now = time.monotonic()
+            if now - self._velocity_said_at >= VELOCITY_LOG_PERIOD:
+                j = self.core.joint_names.index(c.worst_velocity_joint)
+                msg = (
+                    f"simulated joint velocity past its limit in {c.velocity_excess_steps} physics step(s) so far; "
+                    f"worst {c.worst_velocity_joint} {c.worst_velocity_ratio * self.core.vmax[j]:.2f} rad/s vs "
+                    f"{self.core.vmax[j]:.2f} rad/s (the commands stay within it: servo overshoot)"
+                )
+                st.error(msg)  # logs it too
+                self._velocity_excess_said, self._velocity_said_at = c.velocity_excess_steps, now
 
     def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
         """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time)."""
@@ -190,6 +227,7 @@ class SimNode:
             if now >= next_status:
                 self.update_status()
                 next_status = now + 0.1
+                self.keep_state(now)
             if duration is not None and core.time - sim0 >= duration:
                 break
             # Wait for the next physics step on the command mailbox, not in a sleep: a command is
@@ -243,11 +281,14 @@ def run(args, core: SimCore) -> int:
                 svc.keys.sim_state,
                 core.info(),
             )
+            state_file = getattr(args, "state_file", "none")
+            node.state_file = None if state_file in (None, "none") else Path(state_file)
             if node.lockstep:
                 node.run_lockstep(svc.stop_event)
             else:
                 node.run_realtime(svc.stop_event)
             node.update_status()
+            node.keep_state(time.monotonic(), force=True)
     finally:
         if renderer is not None:
             renderer.close()

@@ -80,6 +80,10 @@ class SimConfig:
             )
 
 
+#: |qd| / vmax above which a simulated joint counts as past its velocity limit (1 % for noise).
+VELOCITY_TOLERANCE = 1.01
+
+
 @dataclass
 class SimCounters:
     """What happened to the commands given to :meth:`SimCore.apply`."""
@@ -89,6 +93,12 @@ class SimCounters:
     rejects: dict[str, int] = field(default_factory=dict)
     last_reject: str = ""
     holds: int = 0
+    #: physics steps in which a simulated joint moved faster than its velocity limit (the servo
+    #: target is rate-limited, but a stiff servo catching up, contacts or gravity can overshoot)
+    velocity_excess_steps: int = 0
+    #: largest |qd| / vmax seen (> 1: past the limit) and the joint it was on
+    worst_velocity_ratio: float = 0.0
+    worst_velocity_joint: str = ""
 
 
 class CommandError(ValueError):
@@ -156,6 +166,20 @@ class SimCore:
         self.solver_id = cfg.solver_id
         self.counters = SimCounters()
         self._ncon_max = 0
+
+    def resume(self, q: np.ndarray) -> None:
+        """Start from joint positions ``q`` (n,) [rad] (clipped into the limits), holding them, at rest.
+
+        For a restarted sim: the robot continues from its last state instead of jumping to the
+        profile rest pose.
+        """
+        q = np.clip(np.asarray(q, dtype=float), self.lower, self.upper)
+        self.robot.set_q(q)
+        self.robot.data.qvel[self.robot.dof_idx] = 0.0
+        mujoco.mj_forward(self.robot.model, self.robot.data)
+        self.q_servo, self._ref_q, self._hold_q = q.copy(), q.copy(), q.copy()
+        self._ref_qd[:] = 0.0
+        self.holding = True
 
     # ------------------------------------------------------------------ properties
 
@@ -281,6 +305,18 @@ class SimCore:
         mujoco.mj_step(self.robot.model, d)
         if d.ncon > self._ncon_max:
             self._ncon_max = int(d.ncon)
+        self._check_velocity(d.qvel[self.robot.dof_idx])
+
+    def _check_velocity(self, qd: np.ndarray) -> None:
+        """Count a step whose simulated joint velocity ``qd`` (n,) [rad/s] exceeds the limits."""
+        ratio = np.abs(qd) / np.maximum(self.vmax, 1e-9)
+        i = int(np.argmax(ratio))
+        c = self.counters
+        if ratio[i] > VELOCITY_TOLERANCE:
+            c.velocity_excess_steps += 1
+        if ratio[i] > c.worst_velocity_ratio:
+            c.worst_velocity_ratio = float(ratio[i])
+            c.worst_velocity_joint = self.joint_names[i]
 
     def step_physics(self, n: int = 1) -> None:
         """Advance the physics by ``n`` steps of :attr:`dt` (watchdog checked every step)."""

@@ -69,6 +69,22 @@ def test_sequence_guard_rule():
         SequenceGuard(resync_after=0)
 
 
+def test_sequence_guard_sees_a_restarted_source_at_once():
+    """A sender run again (seq from 0, a later t0) is followed from its first frame; a duplicated or
+    late packet of the old run (its own, earlier t0) is still rejected."""
+    g = SequenceGuard()
+    for i in range(600):
+        g.accept(Header(i, i / 60, 1_000 + i))
+    assert g.check(Header(599, 9.98, 1_599)).reason == "duplicate_seq"  # same packet twice
+    assert g.check(Header(300, 5.0, 1_300)).reason == "seq_backwards"  # a late packet
+    v = g.check(Header(0, 0.0, 5_000))  # the sender restarted: seq 0, made after the last frame
+    assert v.ok and v.restarted, v
+    # Without trusting t0 (stamped on arrival) the same frame waits for the resync rule.
+    g2 = SequenceGuard(trust_t0=False)
+    g2.accept(Header(599, 9.98, 1_599))
+    assert g2.check(Header(0, 0.0, 5_000)).reason == "seq_backwards"
+
+
 def test_sanitizer_follows_the_guard_rule():
     from shared.messages import Bone, HumanFrame
 

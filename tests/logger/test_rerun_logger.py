@@ -152,3 +152,27 @@ def test_skeleton_is_decimated_before_decoding(tmp_path):
     rec.disconnect()
     assert lg.counts["HumanFrame"] == 25 and lg.counts["decimated"] == 75
     assert summarize(tmp_path / "d.rrd").rows["/world/operator/skeleton"] == 25
+
+
+def test_session_timeline_keeps_increasing_across_clips_and_problems_are_said_once(tmp_path):
+    """Two clips (seq and stamp start again) lie one after the other on "session", not on top of
+    each other as on "seq"; a degraded service is put in the text log once per change."""
+    rec = rr.RecordingStream("mimic_test")
+    rec.save(str(tmp_path / "s.rrd"))
+    lg = RerunLogger(rec, None, skeleton_rate=0.0)
+    t0 = time.time_ns()
+    bones = {b: Bone(np.zeros(3), IDENT) for b in HUMAN_BONES}
+    for clip in range(2):
+        for k in range(20):
+            hdr = Header(k, k * DT, t0 + (clip * 20 + k) * 10_000_000)
+            lg.step("k", HumanFrame(hdr, f"clip{clip}", Pose(np.zeros(3), IDENT), bones).encode())
+    bad = ServiceStatus("retarget", "main", "degraded", 1.0, last_error="uncalibrated: bone 'x' missing")
+    for st in (bad, bad, ServiceStatus("retarget", "main", "ok", 2.0), bad):
+        lg.step("s", st.encode())
+    rec.flush()
+    rec.disconnect()
+    seq, _ = scalar_rows(tmp_path / "s.rrd", "metrics/latency_ms/mocap", timeline="seq")
+    session, _ = scalar_rows(tmp_path / "s.rrd", "metrics/latency_ms/mocap", timeline="session")
+    assert len(session) == 40 and len(set(seq.tolist())) == 20  # on "seq" the clips overlap
+    assert np.all(np.diff(session) > 0) and session[-1] - session[0] == pytest.approx(0.39e9, rel=1e-6)
+    assert summarize(tmp_path / "s.rrd").rows["/status/retarget"] == 2  # degraded, then again after ok

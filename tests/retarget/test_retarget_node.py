@@ -65,7 +65,7 @@ def test_node_retargets_every_frame_and_serves_calibration(router, robot14, work
 
         for i in range(1, 21):
             pub.put(make_frame(i, i / 30, offsets={"left_wrist": np.array([0.0, 0.0, 0.01 * i])}, t0=1000 + i).encode())
-        pub.put(make_frame(20, 0.9).encode())  # duplicated seq
+        pub.put(make_frame(20, 0.9, t0=1020).encode())  # duplicated seq (a duplicate keeps its t0)
         pub.put(b"\x93garbage")  # not a HumanFrame
         outs = _collect(got, 20, timeout=5.0)
         assert [o.hdr.seq for o in outs] == list(range(1, 21))

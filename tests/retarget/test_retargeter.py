@@ -183,3 +183,38 @@ def test_explicit_calibration_and_recalibration(make):
 def test_bad_config_is_a_clear_error():
     with pytest.raises(ValueError, match="known"):
         RetargetConfig(mode="fancy")
+
+
+def _from(source: str, seq: int, stamp: float, t0: int):
+    f = make_frame(seq, stamp, t0=t0)
+    return type(f)(f.hdr, source, f.root, f.bones)
+
+
+def test_two_sources_follow_one_and_say_so(make):
+    """Two publishers at once: the first is followed, the other rejected (``other_source``) until the
+    followed one is silent for ``source_timeout``; ``source=`` chooses one explicitly."""
+    r = make()
+    ms = 1_000_000
+    outs = []
+    for i in range(20):  # interleaved, 60 Hz each
+        outs.append(r.step(_from("a", i, i / 60, 17 * ms * i + 1)))
+        outs.append(r.step(_from("b", 100 + i, 5 + i / 60, 17 * ms * i + 2)))
+    assert all(o is not None for o in outs[0::2]) and all(o is None for o in outs[1::2])
+    assert r.rejects["other_source"] == 20 and r.counts["new_source"] == 0
+    # "a" falls silent: after the timeout "b" is followed, as a new stream
+    later = 17 * ms * 20 + int(1.5e9)
+    assert r.step(_from("b", 200, 6.0, later)) is not None and r.counts["new_source"] == 1
+    assert r.step(_from("a", 21, 21 / 60, later + ms)) is None and r.last_reject[0] == "other_source"
+    # explicit choice: "b" only, even when "a" came first
+    r = make(source="b")
+    assert r.step(_from("a", 0, 0.0, 1)) is None and r.last_reject[0] == "other_source"
+    assert r.step(_from("b", 0, 0.0, 2)) is not None
+
+
+def test_a_restarted_source_is_followed_from_its_first_frame(make):
+    """The same sender run again (seq from 0, frames made later): no frame of the second run is lost."""
+    r = make()
+    for i in range(300):
+        assert r.step(make_frame(i, i / 60, t0=1_000 + i)) is not None
+    assert r.step(make_frame(0, 0.0, t0=10_000)) is not None
+    assert r.counts["resync"] == 1 and not r.rejects

@@ -1,0 +1,70 @@
+"""``mimic follow [ID]``: which solver the running sim follows, or switch it (the local solver swap).
+
+Talks to the sim's follow queryable (``keys.sim_follow``). Switching to an id no solver
+announces on the bus (liveliness ``alive/solver/<ID>``) is refused in one line, unless
+``--force`` (e.g. a solver about to start): the robot would otherwise hold its pose with
+nobody commanding it. Exit status 1 with a one-line error when no sim answers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+
+import msgpack
+
+from shared.bus import add_bus_args, open_session, query, query_when_ready
+from shared.keys import Keys
+
+log = logging.getLogger("mimic.follow")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("id", nargs="?", default=None, help="solver id to follow (omit: print the one followed)")
+    p.add_argument("--force", action="store_true", help="switch even when no solver with that id is alive")
+    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the sim's answer")
+    add_bus_args(p)
+
+
+def alive_solvers(z, keys: Keys, wait: float = 0.5) -> list[str]:
+    """Solver ids holding a liveliness token on the session now."""
+    found = set()
+    deadline = time.monotonic() + wait
+    for reply in z.liveliness().get(keys.all_alive, timeout=wait):
+        if reply.ok is not None:
+            parsed = Keys.parse_alive(str(reply.ok.key_expr))
+            if parsed and parsed[0] == "solver":
+                found.add(parsed[1])
+        if time.monotonic() > deadline:
+            break
+    return sorted(found)
+
+
+def main(args: argparse.Namespace) -> int:
+    keys = Keys(args.session)
+    with open_session(args) as z:
+        try:
+            before = msgpack.unpackb(query_when_ready(z, keys.sim_follow, args.timeout))["follow"]
+            solvers = alive_solvers(z, keys)
+            if args.id is not None and args.id != before:
+                if args.id not in solvers and not args.force:
+                    log.error(
+                        "no solver %r is alive on session %r (alive: %s): start it first "
+                        "(mimic solve --id %s --algo ...) or pass --force",
+                        args.id,
+                        args.session,
+                        ", ".join(solvers) or "none",
+                        args.id,
+                    )
+                    return 1
+                query(z, keys.sim_follow, args.id.encode(), timeout=args.timeout)
+        except RuntimeError as exc:
+            log.error(
+                "no sim answered on session %r (%s): is the stack up on this endpoint/session?", args.session, exc
+            )
+            return 1
+    now = args.id or before
+    print(json.dumps({"follow": now, "was": before, "solvers_alive": solvers}))
+    return 0
