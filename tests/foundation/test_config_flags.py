@@ -89,7 +89,7 @@ def test_renamed_and_new_flags():
 @pytest.mark.parametrize(
     ("cls", "kw", "match"),
     [
-        (SolverConfig, {"algo": "nope"}, r"known: \['clik-nullspace'"),
+        (SolverConfig, {"algo": "nope"}, r"known: \['clik-mimicry', 'clik-nullspace'"),
         (SolverConfig, {"qp": "nope"}, r"known: \['daqp', 'piqp'\]"),
         (SolverConfig, {"gain": 0.0}, "gains"),
         (SimConfig, {"watchdog": 0.0}, "watchdog must be > 0"),

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.solver.core import SolverConfig, SolverCore
+from services.solver.core import MIN_STEP, SolverConfig, SolverCore
 from shared.messages import Header, JointCommand, ServiceStatus, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
 
@@ -82,6 +82,7 @@ class SafetyCheck:
 
     def __init__(self, robot, dt: float, q0: np.ndarray):
         self.robot, self.dt, self.prev = robot, dt, np.asarray(q0, float).copy()
+        self.t_prev: float | None = None  # solver time [s] of the previous command, when known
         self.pos_excess = 0.0  # [rad] beyond lower/upper
         self.vel_ratio = 0.0  # max |qd| / vmax
         self.step_ratio = 0.0  # max |dq| / (vmax dt)
@@ -89,15 +90,19 @@ class SafetyCheck:
         self.n = 0
         self.big_steps = 0  # steps above vmax*dt (only possible across a message lost on the way)
 
-    def add(self, q: np.ndarray, qd: np.ndarray) -> None:
+    def add(self, q: np.ndarray, qd: np.ndarray, t: float | None = None) -> None:
+        """One command; ``t`` its solver time [s]: the solver bounds each step by the real time since
+        its last tick (at least ``MIN_STEP``), so a late tick may move further than ``vmax * dt``."""
         r = self.robot
+        dt = self.dt if t is None or self.t_prev is None else max(t - self.t_prev, MIN_STEP)
+        self.t_prev = t
         self.n += 1
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
             self.nonfinite += 1
             return
         self.pos_excess = max(self.pos_excess, float(np.max(np.maximum(r.lower - q, q - r.upper))))
         self.vel_ratio = max(self.vel_ratio, float(np.max(np.abs(qd) / r.vmax)))
-        ratio = float(np.max(np.abs(q - self.prev) / (r.vmax * self.dt)))
+        ratio = float(np.max(np.abs(q - self.prev) / (r.vmax * dt)))
         self.step_ratio = max(self.step_ratio, ratio)
         self.big_steps += ratio > 1.0 + 1e-6
         self.prev = q.copy()
@@ -209,7 +214,7 @@ def test_real_solver_process_stays_safe_on_unsafe_targets(robot, local_stack):
     assert len(cmds) > 100, f"only {len(cmds)} commands"
     check = SafetyCheck(robot, dt, cmds[0].q)
     for c in cmds:
-        check.add(c.q, c.qd)
+        check.add(c.q, c.qd, c.t_cmd)
     st = status["solver"]
     lost = st.counts.get("published.commands", 0) - len(cmds)
     assert 0 <= lost <= 0.01 * len(cmds), (lost, st.counts)
