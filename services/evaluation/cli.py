@@ -220,6 +220,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
+    # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
+    retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget
 
 

@@ -41,7 +41,12 @@ log = logging.getLogger("mimic.posture")
 #: Retarget settings of the posture data: swivel elbows (the reference), eq. 4 orientations against
 #: the calibration posture (the forearm-relative default reads the operator's elbow, which a
 #: wrist-only source does not have), raw finite-difference velocities (as ``mimic eval``).
-POSTURE_RETARGET: dict = {"velocity_tau": 0.0, "elbow_placement": "swivel", "orientation_reference": "posture"}
+POSTURE_RETARGET: dict = {
+    "velocity_tau": 0.0,
+    "elbow_placement": "swivel",
+    "orientation_reference": "posture",
+    "upper_arms": True,  # the expert (clik-mimicry) follows the operator's upper arm
+}
 
 
 @dataclass

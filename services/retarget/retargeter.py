@@ -115,7 +115,9 @@ class RetargetConfig:
             (wrist-only: VR controllers); they calibrate with :func:`.calibration.from_wrists`.
         upper_arms: publish ``TaskTargets.upper_arms`` (seed 004's operator upper-arm orientation
             ``R_m`` in the robot frame) for every arm whose shoulder, elbow and wrist are valid
-            (needs ``elbow_placement="swivel"``).
+            (needs ``elbow_placement="swivel"``). Off by default: its per-frame IK costs ~2 ms per
+            frame (step p50 2.8 against 0.84 ms on byebye_happy), and only ``clik-mimicry`` and the
+            posture-policy training read it; ``mimic retarget --upper-arms`` turns it on.
     """
 
     mode: str = MODES[0]
@@ -137,7 +139,7 @@ class RetargetConfig:
     source: str = ""
     source_timeout: float = 1.0
     arm_length: float = DEFAULT_ARM_LENGTH
-    upper_arms: bool = True
+    upper_arms: bool = False
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from services.solver.base import Algorithm, Solution, count_active, level_residuals
+from services.solver.inequalities import Inequalities
 from services.solver.linalg import split_row_space
 from shared.kinematics import AlignmentTask, Configuration, JointVelocityTask, Task
 
@@ -74,15 +75,23 @@ class ClikMimicry(Algorithm):
         self.damping = damping
 
     def solve(
-        self, configuration: Configuration, levels: Sequence[Sequence[Task]], lb: np.ndarray, ub: np.ndarray
+        self,
+        configuration: Configuration,
+        levels: Sequence[Sequence[Task]],
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None = None,
     ) -> Solution:
+        # ineq: a clamping method cannot honour inequality rows (as clik-nullspace); ignored.
         if not levels or not levels[0]:
             raise ValueError("at least one level with one task is needed")
         As, bs = self.stack(levels, configuration.nv).fill(configuration)
         qd0 = secondary_velocity(configuration, [t for tasks in levels[1:] for t in tasks], self.eta)
         return self._finish(clik_step(As[0], bs[0], qd0, self.damping), As, bs, lb, ub)
 
-    def solve_matrices(self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray):
+    def solve_matrices(
+        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
+    ):
         qd0 = np.zeros(As[0].shape[1])
         for A, b in zip(As[1:], bs[1:]):
             qd0 += A.T @ b

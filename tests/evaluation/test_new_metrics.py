@@ -148,7 +148,7 @@ def _renamed_rig(src, dst) -> None:
     dst.write_text(text.replace("Hips", "Pelvis0"))
 
 
-def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, tmp_path, robot):
+def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, tmp_path, robot, caplog):
     src = next(p for p in bvh_clips if "raise-up-both-hands_normal" in p.name)
     clip = tmp_path / "rig.bvh"
     _renamed_rig(src, clip)
@@ -156,7 +156,10 @@ def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, 
     with pytest.raises(SystemExit) as exc:
         evaluate(args)
     msg = str(exc.value)
-    assert msg.startswith("mimic eval:") and "skeleton" in msg and "Traceback" not in msg
+    # The clip is skipped with one line naming the fix; with no clip left the run ends in one line.
+    assert msg.startswith("mimic eval:") and "no clip could be evaluated" in msg and "Traceback" not in msg
+    skipped = [r.getMessage() for r in caplog.records if "skipping" in r.getMessage()]
+    assert len(skipped) == 1 and "--skeleton-map" in skipped[0] and "\n" not in skipped[0]
     smap = tmp_path / "map.toml"
     bones = {"pelvis": "Pelvis0", "spine": "Spine", "chest": "Chest", "neck": "Neck", "head": "Head"}
     for side, pre in (("left", "Sin"), ("right", "Dex")):

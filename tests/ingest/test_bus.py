@@ -140,9 +140,12 @@ def test_udp_and_xsens_bridge(router):
             time.sleep(0.2)
             base = seq + 10
             n0 = len(got.items)
-            sends = [_frame(base), _frame(base + 1), _frame(base + 1), _frame(base), _frame(base + 2, (np.nan, 0, 0))]
-            for f in sends:
-                tx.sendto(f.encode(), ("127.0.0.1", udp_port))
+            # A duplicated and a late datagram are the same bytes again (same seq and t0); a frame with a
+            # lower seq but a later t0 would be a restarted sender, which is accepted at once.
+            first, second = _frame(base).encode(), _frame(base + 1).encode()
+            sends = [first, second, second, first, _frame(base + 2, (np.nan, 0, 0)).encode()]
+            for dg in sends:
+                tx.sendto(dg, ("127.0.0.1", udp_port))
             tx.sendto(b"\x00not msgpack", ("127.0.0.1", udp_port))
             tx.sendto(_frame(base + 3).encode(), ("127.0.0.1", udp_port))
             q = np.array([1.0, 0, 0, 0])

@@ -68,7 +68,7 @@ def test_upper_arm_solver_recovers_the_link_orientation_of_a_posture(robot14):
 
 def test_real_clip_publishes_upper_arms_and_wrist_only_drops_them(bvh_clips, robot14, workspace):
     clip = load_clip(bvh_clips[0])
-    full = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    full = Retargeter(RetargetConfig(upper_arms=True), workspace=workspace, robot=robot14)
     wo = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
     link = {s: upper_arm_frame(robot14.profile, s) for s in ("left", "right")}
     n = min(clip.n_frames, 60)
