@@ -282,7 +282,10 @@ def run(args, core: SimCore) -> int:
                 core.info(),
             )
             state_file = getattr(args, "state_file", "none")
-            node.state_file = None if state_file in (None, "none") else Path(state_file)
+            # Only a core that can resume (fixed-base joint state) keeps a state file: a wheeled robot's
+            # floating torso cannot be put back from joint positions.
+            resumable = hasattr(core, "resume")
+            node.state_file = None if state_file in (None, "none") or not resumable else Path(state_file)
             if node.lockstep:
                 node.run_lockstep(svc.stop_event)
             else:
