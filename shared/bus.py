@@ -308,6 +308,48 @@ def gap_watch(status: StatusCounters, stream: str) -> Callable[[zenoh.Sample], N
     return watch
 
 
+def ring_pump(
+    session: zenoh.Session,
+    key: str,
+    capacity: int,
+    handle: Callable[[zenoh.Sample], None],
+    status: StatusCounters | None = None,
+    name: str = "ring",
+) -> zenoh.Subscriber:
+    """Subscribe ``key`` through a Rust-side ring of ``capacity`` samples drained by a thread calling ``handle``.
+
+    Why not a plain callback: Zenoh calls a Python callback with the GIL for every sample, and
+    while a worker holds the GIL the Zenoh thread waits (up to the switch interval each time), so
+    a 10 kHz burst backed up in Zenoh and the kernel's TCP buffers (p99 1.6 s and growing) where
+    newest-wins could not drop it. The ring drops its oldest without the GIL; those drops show
+    up as gaps in a NumberedPublisher's numbering. The thread takes one sample blocking (GIL
+    released), then all that are waiting without letting go: one hand-off per batch.
+
+    The subscriber is not to be undeclared while the thread waits in ``recv()`` (zenoh-python
+    1.10 fails with "Already borrowed"): closing the session ends ``recv()``, and the thread.
+    A ``handle`` that raises is reported to ``status`` and the pump goes on.
+    """
+    sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+
+    def pump() -> None:
+        while True:
+            try:
+                batch = [sub.recv()]
+                while (more := sub.try_recv()) is not None:
+                    batch.append(more)
+            except zenoh.ZError:  # the session was closed
+                return
+            for sample in batch:
+                try:
+                    handle(sample)
+                except Exception as exc:  # the pump must outlive any bad sample
+                    if status is not None:
+                        status.error(f"{name} receive failed: {type(exc).__name__}: {exc}")
+
+    threading.Thread(target=pump, name=f"{name}-rx", daemon=True).start()
+    return sub
+
+
 # --------------------------------------------------------------------------- mailboxes
 
 
@@ -365,6 +407,8 @@ class LatestSlot:
 # --------------------------------------------------------------------------- runner
 
 
+#: Smallest Rust-side ring a newest-wins subscription keeps before its Python mailbox [samples].
+RING_MIN_CAPACITY = 8
 #: CPython thread switch interval for services [s] (default 5 ms).
 SWITCH_INTERVAL_S = 5e-4
 
@@ -501,7 +545,8 @@ class ServiceRunner:
         """Newest-wins mailbox (keeping ``depth`` messages) fed by a subscriber on ``key``.
 
         Payloads are decoded by ``take()`` in the consumer's thread, once, and only if
-        taken: the Zenoh thread only copies bytes, so it holds the GIL as briefly as possible.
+        taken. Zenoh's own thread never takes the GIL: it fills a ring of at least
+        RING_MIN_CAPACITY samples that a receiver thread drains into the mailbox.
         ``accept(sample key)`` filters samples before they count as received (e.g. the
         sim keeps only the followed solver's commands); lost samples count as gaps either way.
         """
@@ -516,8 +561,7 @@ class ServiceRunner:
             status.received(stream)
             slot.put(sample.payload.to_bytes())
 
-        sub = self.session.declare_subscriber(key, on_sample)
-        self._entities.append(sub)
+        ring_pump(self.session, key, max(depth, RING_MIN_CAPACITY), on_sample, status, f"{self.service}-{stream}")
         return slot
 
     def queryable(self, key: str, handler: Callable[[bytes | None], bytes]):

@@ -12,7 +12,10 @@ import importlib
 BENCHES = {
     "solvers": ("services.solver.bench", "per-tick time of every algorithm with PIQP and DAQP, beside mink"),
     "pipeline": ("services.evaluation.pipeline_bench", "the real stack on loopback at a fixed mocap rate"),
-    "handoff": ("services.evaluation.handoff_bench", "one bus hand-off per delivery mechanism (callback+slot, ring)"),
+    "handoff": (
+        "services.evaluation.handoff_bench",
+        "one bus hand-off per delivery mechanism (ring+slot as shipped, callback, ring, inline)",
+    ),
     "logger": ("services.logger.bench_cli", "logger throughput: bus messages per second its core takes"),
     "recorder": ("services.recorder.bench_cli", "recorder loss and memory: N messages at R Hz through a router"),
     "ingest": ("services.ingest.bench", "clips loaded, parse speed, the error a broken file gives"),

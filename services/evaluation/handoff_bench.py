@@ -6,11 +6,13 @@ receiving side hands each one to a worker thread that busy-works ``--work-ms`` p
 message (holding the GIL, like a service's step). Latency is worker receipt minus
 put, on one clock. Mechanisms compared:
 
-* ``callback_slot``: Zenoh callback -> :class:`~shared.bus.LatestSlot` (a Python
-  condition variable) -> worker ``take(timeout)``: what the services use.
-* ``ring_channel``: Zenoh's ``RingChannel`` handler, the worker blocking in ``recv()``
-  (the Zenoh thread never needs the GIL; but the ring's drops are invisible to us and
-  ``recv`` has no timeout, so a worker with deadlines cannot wait on it).
+* ``ring_slot``: :func:`~shared.bus.ring_pump` (Zenoh's ``RingChannel``, drained in
+  batches by a thread) -> :class:`~shared.bus.LatestSlot` -> worker ``take(timeout)``:
+  what the services use.
+* ``callback_slot``: Zenoh callback -> LatestSlot -> worker: what the services used
+  before (the Zenoh thread needs the GIL for every sample).
+* ``ring_channel``: the worker blocking in the ring's ``recv()`` itself (no timeout,
+  so a worker with deadlines cannot wait on it).
 * ``inline``: the work done in the Zenoh callback itself (no hand-off; a lower bound).
 """
 
@@ -28,11 +30,11 @@ import time
 import numpy as np
 import zenoh
 
-from shared.bus import LatestSlot, StatusCounters, free_port
+from shared.bus import LatestSlot, StatusCounters, free_port, ring_pump
 from shared.report import emit_json
 
 log = logging.getLogger("mimic.bench.handoff")
-MECHANISMS = ("callback_slot", "ring_channel", "inline")
+MECHANISMS = ("ring_slot", "callback_slot", "ring_channel", "inline")
 _STAMP = struct.Struct("<qq")  # (index, perf_counter_ns at put)
 
 
@@ -80,9 +82,12 @@ def _measure(mechanism: str, endpoint: str, args: argparse.Namespace) -> dict:
     status = StatusCounters("bench", "handoff", log)
     if mechanism == "inline":
         entities.append(rx.declare_subscriber(key, lambda s: record(s.payload.to_bytes())))
-    elif mechanism == "callback_slot":
+    elif mechanism in ("callback_slot", "ring_slot"):
         slot = LatestSlot(status, "x", depth=32)
-        entities.append(rx.declare_subscriber(key, lambda s: slot.put(s.payload.to_bytes())))
+        if mechanism == "ring_slot":  # not undeclared: closing the session ends the pump
+            ring_pump(rx, key, 32, lambda s: slot.put(s.payload.to_bytes()), status, "bench")
+        else:
+            entities.append(rx.declare_subscriber(key, lambda s: slot.put(s.payload.to_bytes())))
 
         def spin() -> None:
             while not done.is_set():
@@ -124,7 +129,7 @@ def _measure(mechanism: str, endpoint: str, args: argparse.Namespace) -> dict:
         return {"received": 0}
     return {
         "received": int(ms.size),
-        # Not received by the worker: overflowed the 32-deep mailbox (counted, callback_slot only),
+        # Not received by the worker: overflowed the 32-deep mailbox (counted, the two slot mechanisms),
         # lost in Zenoh or the ring (invisible), or still queued after the 2 s grace.
         "lost": args.count - int(ms.size),
         "mailbox_dropped": status.count("dropped"),

@@ -2,9 +2,13 @@
 
 Frames are published from the test process at 10 kHz for a few seconds (the
 10-second figure: ``python -m tests.support.faults burst --rate 10000 --duration 10``).
-Newest wins: retarget keeps a bounded queue and the solver and sim keep the
-newest message, so the end-to-end latency stays bounded and does not grow from
-the first to the last second, and the skipped frames are counted as dropped.
+The frames come from a process of their own (a 10 kHz publisher in the observer's
+process would hold its GIL and stamp arrivals late). Newest wins: each service
+takes samples from a Rust-side ring (no GIL per sample, so nothing backs up in
+Zenoh or the kernel), retarget keeps a short queue and the solver and sim keep
+the newest message, so the end-to-end latency stays bounded and does not grow
+from the first to the last second; frames skipped in the ring show up as gaps in
+the publisher's numbering and those skipped in the queue as dropped.
 """
 
 from __future__ import annotations
@@ -18,8 +22,9 @@ from tests.support.faults import PIPELINE, burst, running_stack
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 RATE = 10000.0
 DURATION = 3.5
-#: Generous for a shared 2-core machine (loopback TCP buffers hold a few hundred ms of 10 kHz frames
-#: before Zenoh drops); unbounded queueing would grow by ~1 s per second of burst.
+#: On this 2-core machine the worst one-second p99 over 6 quiet runs was 812 ms: the burst saturates
+#: both cores, so the figure is CPU scheduling, not queueing. Before the ring (Python callback per
+#: sample) samples backed up in TCP buffers and the p99 grew from 0.55 s to 1.6 s within 3.5 s.
 P99_BOUND_MS = 1500.0
 
 
@@ -45,4 +50,8 @@ def test_10khz_burst_latency_stays_bounded_and_drops_are_counted():
     unaccounted = c["received.frames"] - c.get("published.targets", 0) - c.get("dropped.frames", 0)
     unaccounted -= c.get("rejected", 0)
     assert 0 <= unaccounted <= 32, (unaccounted, c)
+    # Nothing vanishes silently on the way either: every frame sent was received or is a gap in the
+    # numbering (only a lost tail, with no later frame to reveal it, can go uncounted).
+    unseen = r["sent"] - c["received.frames"] - c.get("gaps.frames", 0)
+    assert 0 <= unseen <= 32, (unseen, c)
     assert d["solver/main"].get("dropped.targets", 0) + d["sim/main"].get("dropped.commands", 0) > 0, ctx

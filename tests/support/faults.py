@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import itertools
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -24,7 +25,8 @@ import numpy as np
 
 from services.evaluation.soak import FramePublisher, dropped_counts, latency_windows
 from services.launcher.local_stack import LocalStack
-from shared.bus import free_port, query
+from shared.bus import bus_args, free_port, open_session, query
+from shared.keys import Keys
 from shared.robot.pinocchio_model import build_robot_model
 from tests.support.observer import Observer, StateSample
 
@@ -222,20 +224,29 @@ def swap_solver(stack: LocalStack, obs: Observer, algo: str = "wqp") -> dict:
 
 
 def burst(stack: LocalStack, obs: Observer, rate: float, duration: float) -> dict:
-    """Publish HumanFrames at ``rate`` Hz for ``duration`` s from the observer; latency per second."""
-    pub = FramePublisher(obs.z, obs.keys, rate)
-    t_start_ns = time.time_ns()
-    pub.run(duration)
+    """Publish HumanFrames at ``rate`` Hz for ``duration`` s from a process of its own; latency per second.
+
+    The publisher must not share the observer's process: at 10 kHz it holds the observer's GIL
+    and the observer would stamp each RobotState hundreds of ms late (the latency measured would
+    be the harness's own).
+    """
+    argv = [sys.executable, "-m", "tests.support.faults", "publish", "--endpoint", stack.endpoint]
+    argv += ["--session", stack.session, "--rate", str(rate), "--duration", str(duration)]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=duration + 60, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"burst publisher failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
+    pub = json.loads(done.stdout)
+    t0_ns = {int(k): v for k, v in pub["t0_ns"].items()}
     time.sleep(1.0 + 2 * STATUS_PERIOD)
     with obs.lock:
         arrival = dict(obs.first_state_ns)
         status = dict(obs.status)
-    windows = latency_windows(pub.t0_ns, arrival, t_start_ns)
+    windows = latency_windows(t0_ns, arrival, pub["t_start_ns"])
     full = [w for w in windows if "p99" in w and w["sent"] > rate / 2]  # whole seconds that reached the robot
     return {
         "rate_hz": rate,
-        "achieved_rate_hz": pub.achieved_rate,
-        "sent": pub.sent,
+        "achieved_rate_hz": pub["achieved_rate_hz"],
+        "sent": pub["sent"],
         "reached": sum(w["reached"] for w in windows),
         "windows": windows,
         "first_s": full[0] if full else None,
@@ -246,13 +257,30 @@ def burst(stack: LocalStack, obs: Observer, rate: float, duration: float) -> dic
     }
 
 
+def publish(endpoint: str, session: str, rate: float, duration: float) -> dict:
+    """The burst publisher's side of :func:`burst`: frames sent and their t0 [ns] by seq."""
+    z = open_session(bus_args(connect=[endpoint], session=session))
+    try:
+        pub = FramePublisher(z, Keys(session), rate)
+        time.sleep(0.5)  # let the router learn the publisher's route before the first frame
+        t_start_ns = time.time_ns()
+        pub.run(duration)
+    finally:
+        z.close()
+    return {"sent": pub.sent, "achieved_rate_hz": pub.achieved_rate, "t_start_ns": t_start_ns, "t0_ns": pub.t0_ns}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    p.add_argument("scenario", choices=("crash", "swap", "burst"))
+    p.add_argument("scenario", choices=("crash", "swap", "burst", "publish"))
     p.add_argument("--rate", type=float, default=10000.0, help="burst: frames per second [Hz]")
     p.add_argument("--duration", type=float, default=10.0, help="burst: seconds")
+    p.add_argument("--endpoint", help="publish: router endpoint of the stack under test")
+    p.add_argument("--session", help="publish: its bus session")
     a = p.parse_args()
-    if a.scenario == "burst":
+    if a.scenario == "publish":
+        out = publish(a.endpoint, a.session, a.rate, a.duration)
+    elif a.scenario == "burst":
         with running_stack(clip_loop=False) as (stack, obs):
             out = burst(stack, obs, a.rate, a.duration)
     elif a.scenario == "swap":
