@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import time
+import tomllib
 from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
@@ -51,6 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run beside a stack already up: a free loopback port and the first free session <session>-<n>",
     )
     p.add_argument("--compose", default=None, help="compose file to read (default: the repo's docker-compose.yml)")
+    p.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile name or TOML file for every service (default $MIMIC_ROBOT, else the G1)",
+    )
 
 
 def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
@@ -78,6 +84,11 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
+    try:
+        robot = check_robot(args.robot or os.environ.get("MIMIC_ROBOT") or None)
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 1
     endpoint = args.endpoint
     if args.beside:
         endpoint, session = f"tcp/127.0.0.1:{free_port()}", _free_session(run_dir, session)
@@ -88,6 +99,7 @@ def main(args: argparse.Namespace) -> int:
             out=sys.stdout,
             restart=args.restart,
             compose=Path(args.compose) if args.compose else None,
+            env={"MIMIC_ROBOT": robot} if robot else None,
         )
     except (SessionBusyError, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -106,7 +118,7 @@ def main(args: argparse.Namespace) -> int:
     code = 0
     try:
         stack.start_router()
-        monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
+        monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits(robot))
         stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
         log.info(
             "stack up on session %r, router %s: %s (recording %s)",
@@ -175,11 +187,36 @@ def _free_session(run_dir: Path, session: str) -> str:
     return f"{session}-{n}"
 
 
-def _joint_limits():
+def check_robot(robot: str | None) -> str | None:
+    """The robot profile the services get, checked now (a bad one is one line here, not four crashed
+    services): None = their default; a file becomes an absolute path (the services run from the repo).
+
+    Raises:
+        ValueError (ProfileError): unknown or malformed profile, with the reason.
+    """
+    if robot is None:
+        return None
+    from shared.robot.profile import load_profile
+    from shared.robot.wheeled import is_wheeled_profile, load_wheeled_profile
+
+    if Path(robot).is_file():
+        robot = str(Path(robot).resolve())
     try:
+        (load_wheeled_profile if is_wheeled_profile(robot) else load_profile)(robot)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"robot profile {robot}: not valid TOML: {exc}") from None
+    return robot
+
+
+def _joint_limits(robot: str | None = None):
+    try:
+        from shared.robot.wheeled import build_wheeled_robot, is_wheeled_profile, planner_limits
+
+        if robot and is_wheeled_profile(robot):
+            return planner_limits(build_wheeled_robot(robot))  # what its commands and states carry
         from shared.robot.pinocchio_model import build_robot_model
 
-        rm = build_robot_model()
+        rm = build_robot_model(robot) if robot else build_robot_model()
         margin = rm.profile.limit_margin  # the URDF limits, not the solver's shrunk ones
         return rm.lower - margin, rm.upper + margin
     except Exception as exc:  # the summary still works without limit checks

@@ -115,13 +115,21 @@ def main(args: argparse.Namespace) -> int:
     from services.logger.robot_visual import RobotVisual
     from shared.bus import ServiceRunner
     from shared.robot.profile import ProfileError
+    from shared.robot.wheeled import is_wheeled_profile
 
     rrd = args.rrd or Path("runs") / f"{args.session}.rrd"
     if not args.overwrite:
         rrd = unused_path(rrd)
     try:
         rrd.parent.mkdir(parents=True, exist_ok=True)
-        visual = None if args.no_meshes else RobotVisual(args.robot)
+        if args.no_meshes:
+            visual = None
+        elif is_wheeled_profile(args.robot):  # no meshes: its MJCF primitives
+            from services.logger.wheeled_visual import WheeledVisual
+
+            visual = WheeledVisual(args.robot)
+        else:
+            visual = RobotVisual(args.robot)
     except (ProfileError, OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2

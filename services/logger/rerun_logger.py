@@ -158,7 +158,13 @@ class RerunLogger:
                 for mesh, (p, R) in zip(self.visual.meshes, poses):
                     path = f"world/robot/{robot}/{mesh.name}"
                     rgba = tint or mesh.rgba
-                    rec.log(path, rr.Asset3D(path=mesh.path, albedo_factor=rgba), static=True)
+                    # A mesh file (URDF robots), or a primitive that draws itself (services/logger/wheeled_visual.py).
+                    shape = (
+                        mesh.archetype(rgba)
+                        if hasattr(mesh, "archetype")
+                        else rr.Asset3D(path=mesh.path, albedo_factor=rgba)
+                    )
+                    rec.log(path, shape, static=True)
                     if not mesh.moving:
                         rec.log(path, rr.Transform3D(translation=p, mat3x3=R), static=True)
         self._setup_done = True
