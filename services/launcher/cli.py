@@ -42,7 +42,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true", help="restart crashed services with exponential backoff")
     p.add_argument("--clips", nargs="*", default=None, help="with --demo: play these clips instead of the bundled ones")
     p.add_argument("--rate", type=float, default=1.0, help="with --demo: playback speed factor")
-    p.add_argument("--summary", default=None, help="summary JSON path (default runs/<session>_summary.json)")
+    p.add_argument(
+        "--summary",
+        default=None,
+        help="summary JSON path (default runs/<recording name>_summary.json); an existing file is kept and the "
+        "summary goes to the first free <name>-<n>.json, unless --overwrite",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing recording and summary instead of numbering"
+    )
     p.add_argument("--ready-timeout", type=float, default=90.0, help="seconds to wait for every service to come up")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (without --demo)")
     p.add_argument(
@@ -100,8 +108,9 @@ def main(args: argparse.Namespace) -> int:
         return 1
     names = [s.name for s in specs if s.name != ROUTER_SERVICE]
     # Never overwrite an earlier recording of the session: the next free runs/<session>[-n].rrd.
-    rrd = unused_path(run_dir / f"{session}.rrd")
-    extra = {"logger": ["--rrd", str(rrd)]}
+    rrd = run_dir / f"{session}.rrd"
+    rrd = rrd if args.overwrite else unused_path(rrd)
+    extra = {"logger": ["--rrd", str(rrd), *(["--overwrite"] if args.overwrite else [])]}
     monitor = None
     code = 0
     try:
@@ -160,11 +169,20 @@ def main(args: argparse.Namespace) -> int:
         summary["exit_codes"] = codes
         summary["session"] = session
         summary["recording"] = str(rrd) if rrd.exists() else None
-        path = Path(args.summary) if args.summary else run_dir / f"{session}_summary.json"
+        path = summary_path(args, rrd)
         path.write_text(json.dumps(summary, indent=2))
+        log.info("summary written: %s", path)
         if args.demo or args.summary:
             _print_summary(summary, path)
     return code
+
+
+def summary_path(args: argparse.Namespace, rrd: Path) -> Path:
+    """Where this run's summary goes: ``--summary`` or ``<recording stem>_summary.json`` beside the
+    recording (so ``demo-1.rrd`` pairs with ``demo-1_summary.json``), never over an earlier file
+    unless ``--overwrite`` (the recordings' rule, :func:`shared.paths.unused_path`)."""
+    path = Path(args.summary) if args.summary else rrd.with_name(f"{rrd.stem}_summary.json")
+    return path if args.overwrite else unused_path(path)
 
 
 def _free_session(run_dir: Path, session: str) -> str:
