@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
-from services.launcher.monitor import BusMonitor
+from services.launcher.monitor import STARTUP_S, BusMonitor
 from services.launcher.session_lock import SessionBusyError, SessionLock
 from services.launcher.stack import ROUTER_SERVICE, select
 from shared.bus import DEFAULT_ROUTER, free_port
@@ -213,8 +213,10 @@ LEGEND = (
     "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
     "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
     "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
-    "error: simulated robot vs its targets, last state of each frame. max includes the start of each clip",
-    "  (the robot moving from its pose onto the operator's); p95 is the figure for the motion itself.",
+    "error: simulated robot vs its targets, last state of each frame. start-up: the first "
+    f"{STARTUP_S:g} s of each stream",
+    "  (a clip, a restarted source, a source back after a silence), while the robot moves from where it",
+    "  stood onto the operator's pose; steady: the tracking itself (JSON: error_split says the rule).",
 )
 
 
@@ -242,9 +244,12 @@ def _print_summary(s: dict, path: Path) -> None:
         f" ({lat.get('samples')} frames)"
     )
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
+    startup_s = s.get("error_split", {}).get("startup_s")
     for name, e in (("wrist", we), ("elbow", ee)):
+        st, up = e.get("steady", {}), e.get("startup", {})
         lines.append(
-            f"{name} error: mean {f(e.get('mean'), ' cm')}, p95 {f(e.get('p95'), ' cm')}, max {f(e.get('max'), ' cm')}"
+            f"{name} error, steady: mean {f(st.get('mean'), ' cm')}, p95 {f(st.get('p95'), ' cm')},"
+            f" max {f(st.get('max'), ' cm')}   start-up (first {startup_s} s): max {f(up.get('max'), ' cm')}"
         )
     lines.append(
         f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"
