@@ -80,6 +80,11 @@ class Keys:
         return f"{self.prefix}/sim/follow"
 
     @property
+    def stack_solver(self) -> str:
+        """Queryable of ``mimic up``: replace the solver the sim follows (``mimic swap-solver``)."""
+        return f"{self.prefix}/stack/solver"
+
+    @property
     def everything(self) -> str:
         return f"{self.prefix}/**"
 

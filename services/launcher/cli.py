@@ -20,6 +20,7 @@ from pathlib import Path
 from services.launcher.local_stack import LocalStack
 from services.launcher.monitor import STARTUP_S, BusMonitor
 from services.launcher.session_lock import SessionBusyError, SessionLock
+from services.launcher.solver_swap import SolverSwap
 from services.launcher.stack import ROUTER_SERVICE, select
 from shared.bus import DEFAULT_ROUTER, free_port
 from shared.paths import REPO_ROOT, unused_path
@@ -111,12 +112,13 @@ def main(args: argparse.Namespace) -> int:
     rrd = run_dir / f"{session}.rrd"
     rrd = rrd if args.overwrite else unused_path(rrd)
     extra = {"logger": ["--rrd", str(rrd), *(["--overwrite"] if args.overwrite else [])]}
-    monitor = None
+    monitor = swap = None
     code = 0
     try:
         stack.start_router()
         monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
         stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
+        swap = SolverSwap(stack)  # mimic swap-solver
         log.info(
             "stack up on session %r, router %s: %s (recording %s)",
             session,
@@ -149,6 +151,7 @@ def main(args: argparse.Namespace) -> int:
                 )
                 while stack.running(name) and not stop.is_set():
                     stack.sup.poll()
+                    swap.poll()
                     time.sleep(0.05)
                 stack.sup.poll()
             time.sleep(1.5)  # let the last frames drain through solver, sim and logger
@@ -156,11 +159,14 @@ def main(args: argparse.Namespace) -> int:
             t_end = time.monotonic() + args.duration if args.duration else None
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
                 stack.sup.poll()
+                swap.poll()
                 time.sleep(0.1)
     except RuntimeError as exc:
         log.error("%s", exc)
         code = 1
     finally:
+        if swap:
+            swap.close()
         codes = stack.stop(last=STOP_LAST, timeouts={"logger": LOGGER_STOP_S})
         summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
@@ -210,7 +216,7 @@ LEGEND = (
     "",
     "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
     "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
-    "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
+    "  solves on the newest targets, retarget's short queue skips its oldest frames in a burst). rejected: bad or",
     "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
     "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
     "error: simulated robot vs its targets, last state of each frame. start-up: the first "
