@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "services.retarget.calibrate_cli",
         "show, redo (--recalibrate) or set (--file) a running retarget's calibration",
     ),
+    "source": (
+        "services.retarget.source_cli",
+        "show or choose the mocap source the running retarget follows (two sources at once)",
+    ),
     "retarget-plot": ("services.retarget.plot_cli", "plot operator vs robot workspaces and mapped trajectories"),
     "solve": ("services.solver.cli", "strict-priority HQP solver publishing JointCommands"),
     "sim": ("services.sim.cli", "MuJoCo simulation following one solver's commands"),
