@@ -97,3 +97,34 @@ def test_swap_solver_replaces_the_running_solver_of_mimic_up(tmp_path):
     assert "solver 'main' replaced by 'wqp' (wqp): the sim follows 'wqp', solver stopped" in log, log[-3000:]
     assert "without being asked" not in log and "crashed" not in log, log[-3000:]
     assert up.returncode == 0
+
+
+def test_a_solver_stopped_from_outside_is_reported_as_such_not_as_exited_with_0(caplog):
+    """What `mimic up` says when its solver exits 0 unasked: not a bare "exited with 0" warning."""
+    import io
+
+    from services.launcher.supervisor import Supervisor
+
+    sup = Supervisor(out=io.StringIO())
+    # A service that shuts down cleanly on SIGTERM, as every mimic service does.
+    code = (
+        "import signal, sys, time; signal.signal(signal.SIGTERM, lambda *a: sys.exit(0)); "
+        "print('up', flush=True); time.sleep(60)"
+    )
+    child = sup.start("solver", [sys.executable, "-c", code], {})
+    t = time.monotonic()
+    while "up" not in sup.out.getvalue() and time.monotonic() - t < 30:
+        time.sleep(0.05)
+    os.kill(child.proc.pid, signal.SIGTERM)  # "from outside": not through the supervisor
+    child.proc.wait(30)
+    with caplog.at_level("INFO", logger="mimic"):
+        assert sup.poll() == ["solver"]
+    text = caplog.text
+    assert "solver stopped (exit 0) without being asked by this stack" in text, text
+    assert "mimic follow ID" in text and "mimic swap-solver" in text and "exited with 0" not in text
+    sup.start("job", [sys.executable, "-c", "pass"], {}, service=False)  # a one-shot job: its exit is news-free
+    sup.children["job"].proc.wait(30)
+    caplog.clear()
+    with caplog.at_level("INFO", logger="mimic"):
+        sup.poll()
+    assert "job finished" in caplog.text and "WARNING" not in caplog.text, caplog.text
