@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -29,6 +30,14 @@ def _mimic(env: dict, *argv: str, timeout: float = 120) -> subprocess.CompletedP
         timeout=timeout,
         env={**os.environ, **env, "PYTHONPATH": str(REPO_ROOT)},
     )
+
+
+def readme_swap_command() -> str:
+    """The bash block of README's local solver swap (one line: mimic swap-solver)."""
+    text = (REPO_ROOT / "README.md").read_text()
+    block = re.search(r"```bash\n(.*?)```", text[text.index("one command replaces the running solver") :], re.S)
+    assert block and "swap-solver" in block.group(1), "no swap-solver command in README's local swap"
+    return block.group(1)
 
 
 def _errors(run: subprocess.CompletedProcess) -> list[str]:
@@ -75,7 +84,15 @@ def test_swap_solver_replaces_the_running_solver_of_mimic_up(tmp_path):
             sub = z.declare_subscriber(
                 keys.sim_state, lambda s: followed.append(RobotState.decode(s.payload.to_bytes()).solver_id)
             )
-            swap = _mimic(env, "swap-solver", "--algo", "wqp")
+            swap = subprocess.run(  # README's command, verbatim
+                readme_swap_command(),
+                shell=True,
+                cwd=REPO_ROOT,
+                capture_output=True,
+                text=True,
+                timeout=120,
+                env={**os.environ, **env},
+            )
             assert swap.returncode == 0, swap.stderr
             assert json.loads(swap.stdout) == {"follow": "wqp", "was": "main", "algo": "wqp", "stopped": True}
             n = len(followed)
