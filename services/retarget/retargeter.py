@@ -65,7 +65,8 @@ MAX_SOURCES = 32
 CALIBRATION_HINT = (
     "auto-calibration takes the first frame with shoulder, elbow and wrist of both arms, arms hanging at rest "
     "(one arm alone is accepted after 30 frames and mirrored); otherwise install one with "
-    "`mimic calibrate --file FILE` or start retarget with --calibration FILE"
+    "`mimic calibrate --file FILE` or start retarget with --calibration FILE; a wrist-only source (wrists, no "
+    "shoulders or elbows) calibrates from its first rest frame with an assumed arm length (retarget --arm-length)"
 )
 
 
