@@ -1,7 +1,7 @@
 """Bus wiring of the retarget service: mocap frames in, task targets out.
 
 Subscribes HumanFrames on ``keys.mocap_frame`` (decoding and retargeting one frame costs
-~0.7 ms; a short queue absorbs jitter, and under overload the oldest are skipped and counted),
+~0.7 ms; a queue absorbs stalls, and frames gone stale behind newer ones are skipped and counted),
 publishes TaskTargets on ``keys.targets``, and
 serves three queryables:
 
@@ -32,9 +32,12 @@ from services.retarget.retargeter import Retargeter
 from shared.bus import ServiceRunner
 from shared.messages import HumanFrame, MessageError, parse_query
 
-#: Frames kept waiting for the worker before the oldest is skipped. Each adds a step of latency
-#: when the worker is behind (32 gave ~200 ms under a 10 kHz burst on 2 cores).
-FRAME_QUEUE = 4
+#: Frames kept waiting for the worker before the oldest is skipped (absorbs a stall: 0.27 s at 120 Hz).
+FRAME_QUEUE = 32
+#: A frame that waited longer than this [s] while newer ones arrived is skipped (counted as dropped):
+#: the solver only takes the newest target, so working through stale frames only adds latency
+#: (a 32-deep queue alone gave ~200 ms under a 10 kHz burst on 2 cores).
+FRAME_MAX_AGE = 0.1
 #: While frames are rejected as uncalibrated, say so (log warning) at most this often [s].
 UNCALIBRATED_LOG_PERIOD = 2.0
 
@@ -69,8 +72,10 @@ class RetargetNode:
         self._calibration_seen = retargeter.calibration
         self._pub = svc.publisher(svc.keys.targets)
         # Every frame is retargeted while we keep up; under overload (bursts faster than we can
-        # retarget) the oldest beyond FRAME_QUEUE are skipped and counted, so latency stays bounded.
-        self.frames = svc.subscribe_latest(svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE)
+        # retarget) stale frames are skipped and counted, so latency stays bounded.
+        self.frames = svc.subscribe_latest(
+            svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE, max_age=FRAME_MAX_AGE
+        )
         self._worker = threading.Thread(target=self._spin, name="retarget-worker", daemon=True)
         self._worker.start()
         svc.queryable(svc.keys.calibration, self.on_calibration)
