@@ -216,7 +216,7 @@ LEGEND = (
     "",
     "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
     "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
-    "  solves on the newest targets, retarget's short queue skips its oldest frames in a burst). rejected: bad or",
+    "  solves on the newest targets, retarget skips frames that went stale behind newer ones). rejected: bad or",
     "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
     "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
     "error: simulated robot vs its targets, last state of each frame. start-up: the first "
