@@ -25,10 +25,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "services.retarget.calibrate_cli",
         "show, redo (--recalibrate) or set (--file) a running retarget's calibration",
     ),
+    "source": (
+        "services.retarget.source_cli",
+        "show or choose the mocap source the running retarget follows (two sources at once)",
+    ),
     "retarget-plot": ("services.retarget.plot_cli", "plot operator vs robot workspaces and mapped trajectories"),
     "solve": ("services.solver.cli", "strict-priority HQP solver publishing JointCommands"),
     "sim": ("services.sim.cli", "MuJoCo simulation following one solver's commands"),
     "follow": ("services.sim.follow_cli", "show or switch the solver the running sim follows (local solver swap)"),
+    "swap-solver": (
+        "services.launcher.swap_cli",
+        "replace the running solver of a mimic up stack: start another algorithm, follow it, stop the old one",
+    ),
     "log": ("services.logger.cli", "Rerun logger recording everything on the bus"),
     "eval": ("services.evaluation.cli", "offline evaluation of algorithms on clips (JSON + plots)"),
     "posture": ("services.posture.cli", "learned posture policy from wrist-only input: train, bench, gate (seed 004)"),

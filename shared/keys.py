@@ -75,9 +75,19 @@ class Keys:
         return f"{self.prefix}/retarget/calibration"
 
     @property
+    def retarget_source(self) -> str:
+        """Queryable: which mocap source retarget follows (a payload chooses one)."""
+        return f"{self.prefix}/retarget/source"
+
+    @property
     def sim_follow(self) -> str:
         """Queryable: which solver id the sim follows."""
         return f"{self.prefix}/sim/follow"
+
+    @property
+    def stack_solver(self) -> str:
+        """Queryable of ``mimic up``: replace the solver the sim follows (``mimic swap-solver``)."""
+        return f"{self.prefix}/stack/solver"
 
     @property
     def everything(self) -> str:

@@ -19,8 +19,9 @@ import tomllib
 from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
-from services.launcher.monitor import BusMonitor
+from services.launcher.monitor import STARTUP_S, BusMonitor
 from services.launcher.session_lock import SessionBusyError, SessionLock
+from services.launcher.solver_swap import SolverSwap
 from services.launcher.stack import ROUTER_SERVICE, select
 from shared.bus import DEFAULT_ROUTER, free_port
 from shared.paths import REPO_ROOT, unused_path
@@ -43,7 +44,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true", help="restart crashed services with exponential backoff")
     p.add_argument("--clips", nargs="*", default=None, help="with --demo: play these clips instead of the bundled ones")
     p.add_argument("--rate", type=float, default=1.0, help="with --demo: playback speed factor")
-    p.add_argument("--summary", default=None, help="summary JSON path (default runs/<session>_summary.json)")
+    p.add_argument(
+        "--summary",
+        default=None,
+        help="summary JSON path (default runs/<recording name>_summary.json); an existing file is kept and the "
+        "summary goes to the first free <name>-<n>.json, unless --overwrite",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing recording and summary instead of numbering"
+    )
     p.add_argument("--ready-timeout", type=float, default=90.0, help="seconds to wait for every service to come up")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (without --demo)")
     p.add_argument(
@@ -112,14 +121,16 @@ def main(args: argparse.Namespace) -> int:
         return 1
     names = [s.name for s in specs if s.name != ROUTER_SERVICE]
     # Never overwrite an earlier recording of the session: the next free runs/<session>[-n].rrd.
-    rrd = unused_path(run_dir / f"{session}.rrd")
-    extra = {"logger": ["--rrd", str(rrd)]}
-    monitor = None
+    rrd = run_dir / f"{session}.rrd"
+    rrd = rrd if args.overwrite else unused_path(rrd)
+    extra = {"logger": ["--rrd", str(rrd), *(["--overwrite"] if args.overwrite else [])]}
+    monitor = swap = None
     code = 0
     try:
         stack.start_router()
         monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits(robot))
         stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
+        swap = SolverSwap(stack)  # mimic swap-solver
         log.info(
             "stack up on session %r, router %s: %s (recording %s)",
             session,
@@ -152,6 +163,7 @@ def main(args: argparse.Namespace) -> int:
                 )
                 while stack.running(name) and not stop.is_set():
                     stack.sup.poll()
+                    swap.poll()
                     time.sleep(0.05)
                 stack.sup.poll()
             time.sleep(1.5)  # let the last frames drain through solver, sim and logger
@@ -159,11 +171,14 @@ def main(args: argparse.Namespace) -> int:
             t_end = time.monotonic() + args.duration if args.duration else None
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
                 stack.sup.poll()
+                swap.poll()
                 time.sleep(0.1)
     except RuntimeError as exc:
         log.error("%s", exc)
         code = 1
     finally:
+        if swap:
+            swap.close()
         codes = stack.stop(last=STOP_LAST, timeouts={"logger": LOGGER_STOP_S})
         summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
@@ -172,11 +187,20 @@ def main(args: argparse.Namespace) -> int:
         summary["exit_codes"] = codes
         summary["session"] = session
         summary["recording"] = str(rrd) if rrd.exists() else None
-        path = Path(args.summary) if args.summary else run_dir / f"{session}_summary.json"
+        path = summary_path(args, rrd)
         path.write_text(json.dumps(summary, indent=2))
+        log.info("summary written: %s", path)
         if args.demo or args.summary:
             _print_summary(summary, path)
     return code
+
+
+def summary_path(args: argparse.Namespace, rrd: Path) -> Path:
+    """Where this run's summary goes: ``--summary`` or ``<recording stem>_summary.json`` beside the
+    recording (so ``demo-1.rrd`` pairs with ``demo-1_summary.json``), never over an earlier file
+    unless ``--overwrite`` (the recordings' rule, :func:`shared.paths.unused_path`)."""
+    path = Path(args.summary) if args.summary else rrd.with_name(f"{rrd.stem}_summary.json")
+    return path if args.overwrite else unused_path(path)
 
 
 def _free_session(run_dir: Path, session: str) -> str:
@@ -229,11 +253,13 @@ LEGEND = (
     "",
     "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
     "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
-    "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
+    "  solves on the newest targets, retarget skips frames that went stale behind newer ones). rejected: bad or",
     "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
     "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
-    "error: simulated robot vs its targets, last state of each frame. max includes the start of each clip",
-    "  (the robot moving from its pose onto the operator's); p95 is the figure for the motion itself.",
+    "error: simulated robot vs its targets, last state of each frame. start-up: the first "
+    f"{STARTUP_S:g} s of each stream",
+    "  (a clip, a restarted source, a source back after a silence), while the robot moves from where it",
+    "  stood onto the operator's pose; steady: the tracking itself (JSON: error_split says the rule).",
 )
 
 
@@ -261,9 +287,12 @@ def _print_summary(s: dict, path: Path) -> None:
         f" ({lat.get('samples')} frames)"
     )
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
+    startup_s = s.get("error_split", {}).get("startup_s")
     for name, e in (("wrist", we), ("elbow", ee)):
+        st, up = e.get("steady", {}), e.get("startup", {})
         lines.append(
-            f"{name} error: mean {f(e.get('mean'), ' cm')}, p95 {f(e.get('p95'), ' cm')}, max {f(e.get('max'), ' cm')}"
+            f"{name} error, steady: mean {f(st.get('mean'), ' cm')}, p95 {f(st.get('p95'), ' cm')},"
+            f" max {f(st.get('max'), ' cm')}   start-up (first {startup_s} s): max {f(up.get('max'), ' cm')}"
         )
     lines.append(
         f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"
