@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.retarget.calibration import Calibration, CalibrationError, anthropometric
+from services.retarget.intake import FrameIntake
 from services.retarget.velocity import LowPassVelocity
 from shared.messages import Header, HumanFrame, Target, TaskTargets
 from shared.robot.profile import ProfileError
@@ -116,7 +117,7 @@ class MobileWorkspace:
         }
 
 
-class MobileRetargeter:
+class MobileRetargeter(FrameIntake):
     """HumanFrames (operator pelvis frame) -> one hand target in the robot's start frame Σw.
 
     The same interface as :class:`~services.retarget.retargeter.Retargeter` (what
@@ -163,15 +164,6 @@ class MobileRetargeter:
         log.info("calibration installed (%s): %s rest %s", calibration.source, self.map.target,
                  np.round(calibration.rest[self.map.target], 3).tolist())  # fmt: skip
 
-    def request_recalibration(self) -> None:
-        """Calibrate again from the next frame with valid arm bones."""
-        self._recalibrate = True
-        self._calib_tries = 0
-
-    def _reject(self, reason: str, detail: str) -> None:
-        self.rejects[reason] += 1
-        self.last_reject = (reason, detail)
-
     def step(self, frame: HumanFrame) -> TaskTargets | None:
         """Retarget one frame: TaskTargets with the one hand target, or None (``last_reject`` says why)."""
         self.last_reject = None
@@ -193,22 +185,14 @@ class MobileRetargeter:
         last = self._guard.last_stamp(frame.source)
         dt = None if last is None else hdr.stamp - last
         self._guard.accept(hdr, frame.source)
-        if self._recalibrate:
-            try:
-                cal = anthropometric(frame, {t: t for t in TARGET_NAMES} | {self.map.target: self.map.bone})
-                self._calib_tries += 1
-                if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
-                    raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
-                self.set_calibration(cal)
-                self._guard.accept(hdr, frame.source)
-                dt = None
-            except CalibrationError as exc:
-                if self.calibration is None:
-                    self._reject("uncalibrated", f"{exc}; the operator must start at rest, arms hanging")
-                    return None
-        if self.calibration is None:
-            self._reject("uncalibrated", "no calibration and auto-calibration is off")
+        bones = {t: t for t in TARGET_NAMES} | {self.map.target: self.map.bone}
+        calibrated = self._calibrated(
+            frame, hdr, lambda f: anthropometric(f, bones), "the operator must start at rest, arms hanging"
+        )
+        if calibrated == "rejected":
             return None
+        if calibrated == "new":
+            dt = None
         self.counts["frames"] += 1
         name = self.map.target
         bone = frame.bones.get(self.map.bone)

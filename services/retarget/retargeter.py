@@ -31,11 +31,11 @@ import numpy as np
 from services.retarget.calibration import (
     DEFAULT_ARM_LENGTH,
     Calibration,
-    CalibrationError,
     anthropometric,
     from_wrists,
 )
 from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.intake import FrameIntake
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from services.retarget.orientation import (
     ForearmOrientationMap,
@@ -164,7 +164,7 @@ class RetargetConfig:
         return d
 
 
-class Retargeter:
+class Retargeter(FrameIntake):
     """HumanFrames in the operator pelvis frame -> wrist/elbow TaskTargets in the robot base frame.
 
     Args:
@@ -297,10 +297,11 @@ class Retargeter:
         else:
             log.info("no source chosen: following the first one seen until it is silent")
 
-    def request_recalibration(self) -> None:
-        """Calibrate anthropometrically again from the next frame with valid arm bones."""
-        self._recalibrate = True
-        self._calib_tries = 0
+    def _calibration_from(self, frame: HumanFrame) -> Calibration:
+        """The operator's calibration from one rest frame: from the wrists alone for a wrist-only source."""
+        if is_wrist_only(frame):
+            return from_wrists(frame, self.bone_of, self.config.arm_length)
+        return anthropometric(frame, self.bone_of)
 
     def rest_targets(self) -> dict[str, np.ndarray]:
         """Robot target for the operator at rest, target -> (3,) [m] (``U_ps`` of eq. 1; the current
@@ -311,10 +312,6 @@ class Retargeter:
         return out | {t: p.copy() for t, p in self._rest_reach.items()}
 
     # ------------------------------------------------------------------ step
-
-    def _reject(self, reason: str, detail: str) -> None:
-        self.rejects[reason] += 1
-        self.last_reject = (reason, detail)
 
     def _follows(self, frame: HumanFrame) -> bool:
         """Whether ``frame`` comes from the source this retargeter follows (see ``RetargetConfig.source``).
@@ -377,25 +374,11 @@ class Retargeter:
         last_stamp = self._guard.last_stamp(frame.source)
         dt = None if last_stamp is None else hdr.stamp - last_stamp
         self._guard.accept(hdr, frame.source)
-        if self._recalibrate:
-            try:
-                if is_wrist_only(frame):
-                    cal = from_wrists(frame, self.bone_of, self.config.arm_length)
-                else:
-                    cal = anthropometric(frame, self.bone_of)
-                self._calib_tries += 1
-                if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
-                    raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
-                self.set_calibration(cal)
-                self._guard.accept(hdr, frame.source)
-                dt = None
-            except CalibrationError as exc:
-                if self.calibration is None:
-                    self._reject("uncalibrated", f"{exc}; {CALIBRATION_HINT}")
-                    return None
-        if self.calibration is None:
-            self._reject("uncalibrated", f"no calibration and auto-calibration is off; {CALIBRATION_HINT}")
+        calibrated = self._calibrated(frame, hdr, self._calibration_from, CALIBRATION_HINT)
+        if calibrated == "rejected":
             return None
+        if calibrated == "new":
+            dt = None
         if not self._rot_map:
             self._posture_maps(frame)
         self.counts["frames"] += 1
