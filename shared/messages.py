@@ -196,6 +196,19 @@ def _fl(a: np.ndarray) -> list[float]:
     return np.asarray(a, dtype=float).ravel().tolist()
 
 
+def _joints_to_wire(joints: list[str], q: np.ndarray, qd: np.ndarray) -> dict:
+    """Wire fields of a named joint vector: names, q (n,) [rad], qd (n,) [rad/s]."""
+    return {"joints": list(joints), "q": _fl(q), "qd": _fl(qd)}
+
+
+def _joints_from_wire(d: dict, where: str) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(joints, q (n,), qd (n,)) of a message body: unique names, q and qd of the same length."""
+    joints = _names(_req(d, "joints", where), "joints", None)
+    q = _vec(_req(d, "q", where), "q", len(joints))
+    qd = _vec(_req(d, "qd", where), "qd", len(joints))
+    return joints, q, qd
+
+
 # --------------------------------------------------------------------------- building blocks
 
 
@@ -554,9 +567,7 @@ class JointCommand(Message):
             "hdr": self.hdr.to_wire(),
             "id": self.solver_id,
             "algo": self.algo,
-            "joints": list(self.joints),
-            "q": _fl(self.q),
-            "qd": _fl(self.qd),
+            **_joints_to_wire(self.joints, self.q, self.qd),
             "res": [float(r) for r in self.residuals],
             "ms": float(self.solve_ms),
             "status": self.status,
@@ -568,9 +579,7 @@ class JointCommand(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> JointCommand:
-        joints = _names(_req(d, "joints", "JointCommand"), "joints", None)
-        q = _vec(_req(d, "q", "JointCommand"), "q", len(joints))
-        qd = _vec(_req(d, "qd", "JointCommand"), "qd", len(joints))
+        joints, q, qd = _joints_from_wire(d, "JointCommand")
         status = _str(_req(d, "status", "JointCommand"), "status")
         if status not in COMMAND_STATUSES:
             raise MessageError("unknown_name", f"status {status!r}; known: {list(COMMAND_STATUSES)}")
@@ -616,9 +625,7 @@ class RobotState(Message):
     def body(self) -> dict:
         return {
             "hdr": self.hdr.to_wire(),
-            "joints": list(self.joints),
-            "q": _fl(self.q),
-            "qd": _fl(self.qd),
+            **_joints_to_wire(self.joints, self.q, self.qd),
             "frames": {n: p.to_wire() for n, p in self.frames.items()},
             "ts": float(self.sim_time),
             "id": self.solver_id,
@@ -627,7 +634,7 @@ class RobotState(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> RobotState:
-        joints = _names(_req(d, "joints", "RobotState"), "joints", None)
+        joints, q, qd = _joints_from_wire(d, "RobotState")
         frames_raw = _dict(_req(d, "frames", "RobotState"), "frames")
         _names(list(frames_raw), "frames", TARGET_NAMES)
         hold = d.get("hold", False)
@@ -636,8 +643,8 @@ class RobotState(Message):
         return cls(
             Header.from_wire(_req(d, "hdr", "RobotState")),
             joints,
-            _vec(_req(d, "q", "RobotState"), "q", len(joints)),
-            _vec(_req(d, "qd", "RobotState"), "qd", len(joints)),
+            q,
+            qd,
             {n: Pose.from_wire(v, f"frames.{n}") for n, v in frames_raw.items()},
             _float(_req(d, "ts", "RobotState"), "ts"),
             _str(d.get("id", "main"), "id", 64),
