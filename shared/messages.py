@@ -201,12 +201,12 @@ def _joints_to_wire(joints: list[str], q: np.ndarray, qd: np.ndarray) -> dict:
     return {"joints": list(joints), "q": _fl(q), "qd": _fl(qd)}
 
 
-def _joints_from_wire(d: dict, where: str) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(joints, q (n,), qd (n,)) of a message body: unique names, q and qd of the same length."""
+def _joints_from_wire(d: dict, where: str) -> tuple[Header, list[str], np.ndarray, np.ndarray]:
+    """(header, joints, q (n,), qd (n,)) of a message body: unique names, q and qd of the same length."""
     joints = _names(_req(d, "joints", where), "joints", None)
     q = _vec(_req(d, "q", where), "q", len(joints))
     qd = _vec(_req(d, "qd", where), "qd", len(joints))
-    return joints, q, qd
+    return Header.from_wire(_req(d, "hdr", where)), joints, q, qd
 
 
 # --------------------------------------------------------------------------- building blocks
@@ -579,12 +579,12 @@ class JointCommand(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> JointCommand:
-        joints, q, qd = _joints_from_wire(d, "JointCommand")
+        hdr, joints, q, qd = _joints_from_wire(d, "JointCommand")
         status = _str(_req(d, "status", "JointCommand"), "status")
         if status not in COMMAND_STATUSES:
             raise MessageError("unknown_name", f"status {status!r}; known: {list(COMMAND_STATUSES)}")
         return cls(
-            Header.from_wire(_req(d, "hdr", "JointCommand")),
+            hdr,
             _str(_req(d, "id", "JointCommand"), "id", 64),
             _str(_req(d, "algo", "JointCommand"), "algo", 64),
             joints,
@@ -634,14 +634,14 @@ class RobotState(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> RobotState:
-        joints, q, qd = _joints_from_wire(d, "RobotState")
+        hdr, joints, q, qd = _joints_from_wire(d, "RobotState")
         frames_raw = _dict(_req(d, "frames", "RobotState"), "frames")
         _names(list(frames_raw), "frames", TARGET_NAMES)
         hold = d.get("hold", False)
         if not isinstance(hold, bool):
             raise MessageError("type", "hold: expected bool")
         return cls(
-            Header.from_wire(_req(d, "hdr", "RobotState")),
+            hdr,
             joints,
             q,
             qd,
