@@ -3,10 +3,11 @@
 An algorithm is given the stacked task rows of each level, ``A_k`` (m_k, n) and
 ``b_k`` (m_k,), level 0 first (highest priority), and the joint-velocity box
 ``lb <= qd <= ub`` (n,) [rad/s] that the caller built from every joint limit
-(``bounds.JointBounds``). It implements one method, :meth:`Algorithm.solve_matrices`;
-:meth:`Algorithm.solve` only evaluates the tasks at a configuration first. The
-residuals it reports are always ``||A_k qd - b_k||`` of the qd it returns, so the
-status the service derives from them means the same for every algorithm.
+(``bounds.JointBounds``), held together as one :class:`LevelProblem`. It implements one
+method, :meth:`Algorithm.solve_problem`; :meth:`Algorithm.solve` (tasks at a configuration)
+and :meth:`Algorithm.solve_matrices` (stacked rows) only build the problem. The residuals it
+reports are always ``||A_k qd - b_k||`` of the qd it returns (:meth:`LevelProblem.solution`),
+so the status the service derives from them means the same for every algorithm.
 """
 
 from __future__ import annotations
@@ -88,6 +89,53 @@ def clip(x: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(x, lb, out=x), ub, out=x)
 
 
+@dataclass(slots=True)
+class LevelProblem:
+    """One solve: levels ``min ||A_k x - b_k||`` in priority order, with ``lb <= x <= ub`` and ``G x <= h``.
+
+    Attributes:
+        As: per level (m_k, n) task matrices, level 0 (highest priority) first. bs: per level (m_k,) targets.
+        lb, ub: (n,) joint-velocity bounds [rad/s] with lb <= ub.
+        ineq: optional inequality rows; an empty set is dropped (None), so algorithms test for None only.
+        configuration, levels: the configuration and the tasks the rows were evaluated from, when solved
+            through :meth:`Algorithm.solve` (None from :meth:`Algorithm.solve_matrices`), for algorithms
+            that use more of a task than its rows (clik-mimicry's alignment gradient).
+    """
+
+    As: Sequence[np.ndarray]
+    bs: Sequence[np.ndarray]
+    lb: np.ndarray
+    ub: np.ndarray
+    ineq: Inequalities | None = None
+    configuration: Configuration | None = None
+    levels: Sequence[Sequence[Task]] | None = None
+
+    def __post_init__(self) -> None:
+        if self.ineq is not None and not self.ineq.rows:
+            self.ineq = None
+
+    @property
+    def n(self) -> int:
+        """Number of variables (joints)."""
+        return self.lb.shape[0]
+
+    @property
+    def mid(self) -> np.ndarray:
+        """(n,) centre of the box [rad/s] (the cascades damp towards it, not towards zero)."""
+        return 0.5 * (self.lb + self.ub)
+
+    def solution(self, x: np.ndarray, ok: bool = True, iters: int = 0, qp_calls: int = 0, reason: str = "") -> Solution:
+        """The Solution for x (n,): its residuals on every level, and its active bounds when ok (0 when not)."""
+        active = count_active(x, self.lb, self.ub) if ok else 0
+        return Solution(x, level_residuals(self.As, self.bs, x), ok, iters, qp_calls, active, reason)
+
+    def clamped(self, qd: np.ndarray) -> Solution:
+        """The clamping baselines' answer: qd (n,) clamped into the box, the reason saying how many joints moved."""
+        x = np.minimum(np.maximum(qd, self.lb), self.ub)
+        moved = int(np.count_nonzero(x != qd))
+        return self.solution(x, reason=f"clamped {moved} joints" if moved else "")
+
+
 class Algorithm(ABC):
     """A velocity-level solver over prioritised levels of tasks with hard joint bounds."""
 
@@ -117,16 +165,13 @@ class Algorithm(ABC):
             levels: tasks by priority, highest first (at least one task on the first level).
             lb, ub: (n,) joint-velocity bounds [rad/s] with lb <= ub, hard at every level.
             ineq: optional rows ``G qd <= h`` (self-collision dampers), hard at every level of the QP
-                algorithms; the clamping baselines (clik-nullspace, dls) cannot honour them.
+                algorithms; the clamping baselines (clik-nullspace, clik-mimicry, dls) cannot honour them.
         """
         if not levels or not levels[0]:
             raise ValueError("at least one level with one task is needed")
         As, bs = self.stack(levels, configuration.nv).fill(configuration)
-        if ineq is not None and ineq.rows:
-            return self.solve_matrices(As, bs, lb, ub, ineq)
-        return self.solve_matrices(As, bs, lb, ub)
+        return self.solve_problem(LevelProblem(As, bs, lb, ub, ineq, configuration, levels))
 
-    @abstractmethod
     def solve_matrices(
         self,
         As: Sequence[np.ndarray],
@@ -135,10 +180,9 @@ class Algorithm(ABC):
         ub: np.ndarray,
         ineq: Inequalities | None = None,
     ) -> Solution:
-        """Solve levels ``min ||A_k x - b_k||`` (priority order) with ``lb <= x <= ub`` and ``G x <= h``.
+        """Solve stacked rows directly (see :class:`LevelProblem` for the arguments)."""
+        return self.solve_problem(LevelProblem(As, bs, lb, ub, ineq))
 
-        Args:
-            As: per level (m_k, n) task matrices. bs: per level (m_k,) targets.
-            lb, ub: (n,) bounds with lb <= ub.
-            ineq: optional inequality rows (ignored by the clamping baselines).
-        """
+    @abstractmethod
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        """Solve the levels of p in priority order within its bounds (and its inequality rows, if it can)."""

@@ -24,8 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.solver.base import Algorithm, Solution, count_active, level_residuals
-from services.solver.inequalities import Inequalities
+from services.solver.base import Algorithm, LevelProblem, Solution
 from services.solver.linalg import split_row_space
 from shared.kinematics import AlignmentTask, Configuration, JointVelocityTask, Task
 
@@ -74,32 +73,14 @@ class ClikMimicry(Algorithm):
         self.eta = eta
         self.damping = damping
 
-    def solve(
-        self,
-        configuration: Configuration,
-        levels: Sequence[Sequence[Task]],
-        lb: np.ndarray,
-        ub: np.ndarray,
-        ineq: Inequalities | None = None,
-    ) -> Solution:
-        # ineq: a clamping method cannot honour inequality rows (as clik-nullspace); ignored.
-        if not levels or not levels[0]:
-            raise ValueError("at least one level with one task is needed")
-        As, bs = self.stack(levels, configuration.nv).fill(configuration)
-        qd0 = secondary_velocity(configuration, [t for tasks in levels[1:] for t in tasks], self.eta)
-        return self._finish(clik_step(As[0], bs[0], qd0, self.damping), As, bs, lb, ub)
-
-    def solve_matrices(
-        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
-    ):
-        qd0 = np.zeros(As[0].shape[1])
-        for A, b in zip(As[1:], bs[1:]):
-            qd0 += A.T @ b
-        return self._finish(clik_step(As[0], bs[0], qd0, self.damping), As, bs, lb, ub)
-
-    @staticmethod
-    def _finish(qd, As, bs, lb, ub) -> Solution:
-        clamped = np.minimum(np.maximum(qd, lb), ub)
-        n_clamped = int(np.count_nonzero(clamped != qd))
-        reason = f"clamped {n_clamped} joints" if n_clamped else ""
-        return Solution(clamped, level_residuals(As, bs, clamped), True, 0, 0, count_active(clamped, lb, ub), reason)
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        # p.ineq: a clamping method cannot honour inequality rows (as clik-nullspace); ignored.
+        if p.levels is not None:
+            # Solved from the tasks: q̇₀ from each lower task as the module doc says (exact alignment gradient).
+            qd0 = secondary_velocity(p.configuration, [t for tasks in p.levels[1:] for t in tasks], self.eta)
+        else:
+            # Only the rows are known: every lower level contributes Aᵀ b.
+            qd0 = np.zeros(p.n)
+            for A, b in zip(p.As[1:], p.bs[1:]):
+                qd0 += A.T @ b
+        return p.clamped(clik_step(p.As[0], p.bs[0], qd0, self.damping))

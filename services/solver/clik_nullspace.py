@@ -17,11 +17,7 @@ wrist task whenever a clamp is active (that is the method's known weakness).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
-import numpy as np
-
-from services.solver.base import Algorithm, Solution, count_active, level_residuals
+from services.solver.base import Algorithm, LevelProblem, Solution
 from services.solver.linalg import split_row_space
 
 
@@ -42,17 +38,13 @@ class ClikNullspace(Algorithm):
         self.eta = eta
         self.damping = damping
 
-    def solve_matrices(
-        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
-    ):
-        # ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        # p.ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
+        As, bs = p.As, p.bs
         split = split_row_space(As[0])
         qd = split.lstsq(bs[0], self.damping)
         if len(As) > 1 and self.eta > 0:
             qd0 = sum(A.T @ b for A, b in zip(As[1:], bs[1:]))
             N = split.null_basis
             qd = qd + self.eta * (N @ (N.T @ qd0))
-        clamped = np.minimum(np.maximum(qd, lb), ub)
-        n_clamped = int(np.count_nonzero(clamped != qd))
-        reason = f"clamped {n_clamped} joints" if n_clamped else ""
-        return Solution(clamped, level_residuals(As, bs, clamped), True, 0, 0, count_active(clamped, lb, ub), reason)
+        return p.clamped(qd)

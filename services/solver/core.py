@@ -37,7 +37,7 @@ from services.solver.inequalities import Inequalities
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
 from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
-from services.solver.targets import TargetTracker
+from services.solver.targets import TargetSample, TargetTracker
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
@@ -579,28 +579,13 @@ class SolverCore:
                 missing.append(task.frame)
                 continue
             if isinstance(task, FrameTask):  # the paper's hierarchy: full wrist poses on level 1
-                task.set_target(s.p, s.R, s.v, s.w, check=False)  # validated when decoded
-                task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
+                _aim_pose(task, s, self.config.wrist_orientation_cost)
             else:
-                task.set_target(s.p, s.v, check=False)
+                task.set_target(s.p, s.v, check=False)  # validated when decoded
             if s.held:
                 held.append(task.frame)
-        for task in self.orientation_tasks:
-            s = samples[task.frame]
-            if s is None:
-                task.set_target_from_configuration(conf)
-                continue
-            task.set_target(s.p, s.R, s.v, s.w, check=False)
-            task.set_orientation_cost(self.config.wrist_orientation_cost if s.use_rotation else 0.0)
-        elbow_rotation = False
-        for task in self.elbow_orientation_tasks:
-            s = samples[task.frame]
-            if s is None:
-                task.set_target_from_configuration(conf)
-                continue
-            task.set_target(s.p, s.R, s.v, s.w, check=False)
-            task.set_orientation_cost(self.config.elbow_orientation_cost if s.use_rotation else 0.0)
-            elbow_rotation |= s.use_rotation
+        self._aim_poses(self.orientation_tasks, samples, self.config.wrist_orientation_cost)
+        elbow_rotation = self._aim_poses(self.elbow_orientation_tasks, samples, self.config.elbow_orientation_cost)
         # Elbow orientation rows only while a target asks for them: the plain levels keep their size.
         self.levels = self._levels_elbow_poses if elbow_rotation else self._levels_position_elbows
         why: list[str] = []
@@ -611,6 +596,18 @@ class SolverCore:
         if missing:
             why.append("never received: " + ", ".join(missing))
         return why
+
+    def _aim_poses(self, tasks: list[FrameTask], samples: dict[str, TargetSample | None], cost: float) -> bool:
+        """Aim each pose task at its sample (held where it is when there is none); True when one uses rotation."""
+        rotation = False
+        for task in tasks:
+            s = samples[task.frame]
+            if s is None:
+                task.set_target_from_configuration(self.configuration)
+                continue
+            _aim_pose(task, s, cost)
+            rotation |= s.use_rotation
+        return rotation
 
     def _command(
         self, status: str, residuals: list[float], iters: int, active: int, reason: str, t_start: float, t: float
@@ -630,3 +627,10 @@ class SolverCore:
             reason=reason,
             t_cmd=t,
         )
+
+
+def _aim_pose(task: FrameTask, s: TargetSample, cost: float) -> None:
+    """Pose target of s (base frame, validated when decoded); orientation rows weighted by cost only when
+    the target carries a rotation."""
+    task.set_target(s.p, s.R, s.v, s.w, check=False)
+    task.set_orientation_cost(cost if s.use_rotation else 0.0)

@@ -11,12 +11,10 @@ are the method's known weaknesses against the HQP.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 from scipy.linalg import lapack
 
-from services.solver.base import Algorithm, Solution, count_active, level_residuals
+from services.solver.base import Algorithm, LevelProblem, Solution
 
 
 class DampedLeastSquares(Algorithm):
@@ -34,18 +32,12 @@ class DampedLeastSquares(Algorithm):
             raise ValueError(f"damping must be > 0, got {damping}")
         self.damping = damping
 
-    def solve_matrices(
-        self, As: Sequence[np.ndarray], bs: Sequence[np.ndarray], lb: np.ndarray, ub: np.ndarray, ineq=None
-    ):
-        # ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
-        A, b = As[0], bs[0]
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        # p.ineq: a clamping baseline cannot honour inequality rows (the method's weakness); ignored.
+        A, b = p.As[0], p.bs[0]
         H = A.T @ A
         H.flat[:: H.shape[0] + 1] += self.damping
         _c, qd, info = lapack.dposv(H, A.T @ b)
         if info != 0 or not np.all(np.isfinite(qd)):
-            zero = np.zeros_like(lb)
-            return Solution(zero, level_residuals(As, bs, zero), False, 0, 0, 0, f"DLS: dposv info {info}")
-        clipped = np.minimum(np.maximum(qd, lb), ub)
-        n_clipped = int(np.count_nonzero(clipped != qd))
-        reason = f"clipped {n_clipped} joints" if n_clipped else ""
-        return Solution(clipped, level_residuals(As, bs, clipped), True, 0, 0, count_active(clipped, lb, ub), reason)
+            return p.solution(np.zeros(p.n), False, reason=f"DLS: dposv info {info}")
+        return p.clamped(qd)

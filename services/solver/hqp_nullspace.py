@@ -27,17 +27,9 @@ import numpy as np
 from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
-from services.solver.base import (
-    QP_BOUND_TOL,
-    Solution,
-    clip,
-    count_active,
-    level_residuals,
-    violation,
-    within,
-)
+from services.solver.base import QP_BOUND_TOL, LevelProblem, Solution, clip, violation, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
-from services.solver.inequalities import Inequalities, level_rows
+from services.solver.inequalities import level_rows
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
@@ -62,22 +54,13 @@ class HqpNullspace(CascadeQp):
         super().__init__(backend, eps, refine)
         self.shortcut = shortcut
 
-    def solve_matrices(
-        self,
-        As: Sequence[np.ndarray],
-        bs: Sequence[np.ndarray],
-        lb: np.ndarray,
-        ub: np.ndarray,
-        ineq: Inequalities | None = None,
-    ):
-        n = lb.shape[0]
-        if ineq is not None and not ineq.rows:
-            ineq = None
-        x = np.zeros(n)
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        As, bs, lb, ub, ineq = p.As, p.bs, p.lb, p.ub, p.ineq
+        x = np.zeros(p.n)
         # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
         # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
         # unconstrained optimum out of it (a QP on every tick instead of a few).
-        mid = 0.5 * (lb + ub)
+        mid = p.mid
         Z: np.ndarray | None = None  # None means identity (first level)
         iters = calls = 0
         reason = ""
@@ -107,7 +90,7 @@ class HqpNullspace(CascadeQp):
                 calls += 1
                 if w is None:
                     if k == 0:
-                        return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {status}")
+                        return p.solution(x, False, iters, calls, f"level 1 QP: {status}")
                     reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
                     break
                 xt = base + (w if Z is None else Z @ w)
@@ -116,7 +99,7 @@ class HqpNullspace(CascadeQp):
                     gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
                     reason = f"level {k + 1} QP left the box by {gap:.2e}"
                     if k == 0:
-                        return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, reason)
+                        return p.solution(x, False, iters, calls, reason)
                     break
                 clip(xt, lb, ub)
             x = xt
@@ -124,7 +107,7 @@ class HqpNullspace(CascadeQp):
                 break
             N = split.null_basis
             Z = N if Z is None else Z @ N
-        return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
+        return p.solution(x, True, iters, calls, reason)
 
     def _level_qp(self, M, c, Z, lo, hi, k, rows=(None, None, None)):
         """QP of one level in z: ``min ||M z - c||^2 + eps ||z||^2``, ``lo <= Z z <= hi`` (Z None = identity).

@@ -22,9 +22,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from services.solver.active_set import refine_on_active_set
-from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
+from services.solver.base import QP_BOUND_TOL, LevelProblem, Solution, clip, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
-from services.solver.inequalities import NO_BOUND, Inequalities
+from services.solver.inequalities import NO_BOUND
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
@@ -45,27 +45,20 @@ class HqpOriginal(CascadeQp):
     def __init__(self, backend: QpBackend, eps: float | Sequence[float] = 1e-9, refine: bool = True):
         super().__init__(backend, eps, refine)
 
-    def solve_matrices(
-        self,
-        As: Sequence[np.ndarray],
-        bs: Sequence[np.ndarray],
-        lb: np.ndarray,
-        ub: np.ndarray,
-        ineq: Inequalities | None = None,
-    ):
-        n = lb.shape[0]
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        As, lb, ub, ineq, n = p.As, p.lb, p.ub, p.ineq, p.n
         # Solved in y = x - mid (mid: the box centre), so that the damping pulls towards the centre of the
         # box, as in HQP-Nullspace: with acceleration limits the box is a band around the last velocity.
-        mid = 0.5 * (lb + ub)
+        mid = p.mid
         lo, hi = lb - mid, ub - mid
         y = np.zeros(n)
         G = gl = gu = None
-        if ineq is not None and ineq.rows:
+        if ineq is not None:
             # G x <= h in y: G y <= h - G mid
             G, gl, gu = ineq.G, np.full(ineq.rows, NO_BOUND), ineq.h - ineq.G @ mid
         iters = calls = 0
         reason = ""
-        for k, (A, b) in enumerate(zip(As, bs)):
+        for k, (A, b) in enumerate(zip(As, p.bs)):
             eps = self.level_eps(k)
             c = b - A @ mid
             H = A.T @ A
@@ -91,8 +84,7 @@ class HqpOriginal(CascadeQp):
             if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL) or (G is not None and np.any(G @ r.x > gu + 1e-7)):
                 why = r.status if not r.ok else "QP left the box"
                 if k == 0:
-                    x = np.zeros(n)
-                    return Solution(x, level_residuals(As, bs, x), False, iters, calls, 0, f"level 1 QP: {why}")
+                    return p.solution(np.zeros(n), False, iters, calls, f"level 1 QP: {why}")
                 reason = f"level {k + 1} QP {why}; kept levels 1-{k}"
                 break
             if not self.refine:
@@ -103,5 +95,4 @@ class HqpOriginal(CascadeQp):
                 Gs = np.vstack((np.eye(n), G))
                 ys = refine_on_active_set(A, c, r.x, Gs, np.r_[lo, gl], np.r_[hi, gu], E, e, eps=eps)
             y = clip(np.array(ys), lo, hi)
-        x = clip(mid + y, lb, ub)
-        return Solution(x, level_residuals(As, bs, x), True, iters, calls, count_active(x, lb, ub), reason)
+        return p.solution(clip(mid + y, lb, ub), True, iters, calls, reason)

@@ -27,9 +27,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.linalg import lapack
 
-from services.solver.base import QP_BOUND_TOL, Solution, clip, count_active, level_residuals, within
+from services.solver.base import QP_BOUND_TOL, LevelProblem, Solution, clip, within
 from services.solver.cascade import CascadeQp
-from services.solver.inequalities import NO_BOUND, Inequalities
+from services.solver.inequalities import NO_BOUND
 from services.solver.qp import QpBackend
 
 
@@ -58,19 +58,12 @@ class WeightedQp(CascadeQp):
         self.level_weights = tuple(float(w) for w in level_weights)
         self.shortcut = shortcut
 
-    def solve_matrices(
-        self,
-        As: Sequence[np.ndarray],
-        bs: Sequence[np.ndarray],
-        lb: np.ndarray,
-        ub: np.ndarray,
-        ineq: Inequalities | None = None,
-    ):
-        n = lb.shape[0]
-        rows = ineq is not None and ineq.rows > 0
+    def solve_problem(self, p: LevelProblem) -> Solution:
+        lb, ub, ineq, n = p.lb, p.ub, p.ineq, p.n
+        rows = ineq is not None
         H = np.zeros((n, n))
         f = np.zeros(n)
-        for k, (A, b) in enumerate(zip(As, bs)):
+        for k, (A, b) in enumerate(zip(p.As, p.bs)):
             w2 = self.level_weights[min(k, len(self.level_weights) - 1)] ** 2
             H += w2 * (A.T @ A)
             f -= w2 * (A.T @ b)
@@ -78,7 +71,7 @@ class WeightedQp(CascadeQp):
         if self.shortcut:
             _c, x, info = lapack.dposv(H, -f)
             if info == 0 and within(x, lb, ub) and (not rows or ineq.satisfied(x)):
-                return Solution(x, level_residuals(As, bs, x), True, 0, 0, count_active(x, lb, ub))
+                return p.solution(x)
         if rows:
             low = np.full(ineq.rows, NO_BOUND)
             r = self.backend.solve(H, f, lb=lb, ub=ub, G=ineq.G, gl=low, gu=ineq.h, key="wqpg")
@@ -86,7 +79,5 @@ class WeightedQp(CascadeQp):
             r = self.backend.solve(H, f, lb=lb, ub=ub, key="wqp")
         if not r.ok or not within(r.x, lb, ub, QP_BOUND_TOL) or (rows and not ineq.satisfied(r.x, QP_BOUND_TOL)):
             why = r.status if not r.ok else "QP left the box"
-            zero = np.zeros(n)
-            return Solution(zero, level_residuals(As, bs, zero), False, r.iters, 1, 0, f"QP: {why}")
-        x = clip(r.x, lb, ub)
-        return Solution(x, level_residuals(As, bs, x), True, r.iters, 1, count_active(x, lb, ub))
+            return p.solution(np.zeros(n), False, r.iters, 1, f"QP: {why}")
+        return p.solution(clip(r.x, lb, ub), True, r.iters, 1)

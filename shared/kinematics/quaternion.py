@@ -28,26 +28,28 @@ H = np.vstack([np.zeros((1, 3)), np.eye(3)])
 T = np.diag([1.0, -1.0, -1.0, -1.0])
 
 
-def L(q: np.ndarray) -> np.ndarray:
-    """(4, 4) left-multiplication matrix: q ⊗ p = L(q) p."""
+def _product_matrix(q: np.ndarray, cross_sign: float) -> np.ndarray:
+    """(4, 4) ``[[s, -vᵀ], [v, s I + cross_sign [v]x]]``: L(q) with +1, R(q) with -1.
+
+    The two products differ only in the order of the cross product ``v x p_v``.
+    """
     s, v = q[0], q[1:]
     out = np.empty((4, 4))
     out[0, 0] = s
     out[0, 1:] = -v
     out[1:, 0] = v
-    out[1:, 1:] = s * np.eye(3) + skew(v)
+    out[1:, 1:] = s * np.eye(3) + cross_sign * skew(v)
     return out
+
+
+def L(q: np.ndarray) -> np.ndarray:
+    """(4, 4) left-multiplication matrix: q ⊗ p = L(q) p."""
+    return _product_matrix(q, 1.0)
 
 
 def R(q: np.ndarray) -> np.ndarray:
     """(4, 4) right-multiplication matrix: p ⊗ q = R(q) p."""
-    s, v = q[0], q[1:]
-    out = np.empty((4, 4))
-    out[0, 0] = s
-    out[0, 1:] = -v
-    out[1:, 0] = v
-    out[1:, 1:] = s * np.eye(3) - skew(v)
-    return out
+    return _product_matrix(q, -1.0)
 
 
 def qmul(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:

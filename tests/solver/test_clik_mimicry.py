@@ -134,13 +134,11 @@ def test_secondary_level_does_not_change_the_wrist_velocity(robot17):
     align = AlignmentTask(LINK, _arm(robot17)[:3])
     align.set_target(pin.exp3(np.array([0.3, -0.2, 0.1])) @ conf.get_frame_pose(LINK)[1])
     lim = np.full(robot17.nq, 1e3)
-    A, b = wrist.compute_qp_objective(conf)
+    A = wrist.compute_qp_objective(conf)[0].copy()  # the level-1 rows: (6, n)
     out = {}
     for eta in (0.0, 10.0):
-        alg = ClikMimicry(eta=eta)
-        As, bs = [A], [b]
-        qd = clik_step(As[0], bs[0], secondary_velocity(conf, [align], eta))
-        sol = alg._finish(qd, As, bs, -lim, lim)
+        sol = ClikMimicry(eta=eta).solve(conf, [[wrist], [align]], -lim, lim)
+        assert sol.ok and sol.reason == ""  # no clamp acted
         out[eta] = sol.qd
     np.testing.assert_allclose(A @ out[10.0], A @ out[0.0], atol=1e-10)
     assert np.linalg.norm(out[10.0] - out[0.0]) > 1e-2
