@@ -179,6 +179,19 @@ def _dict(x: Any, where: str) -> dict:
     return x
 
 
+def _bool(x: Any, where: str) -> bool:
+    if not isinstance(x, bool):
+        raise MessageError("type", f"{where}: expected bool")
+    return x
+
+
+def _table(x: Any, where: str, known: tuple[str, ...]) -> dict:
+    """A map keyed by unique names out of ``known`` (its values are the caller's to check)."""
+    raw = _dict(x, where)
+    _names(list(raw), where, known)
+    return raw
+
+
 def _names(x: Any, where: str, known: tuple[str, ...] | None) -> list[str]:
     names = [_str(n, f"{where}[{i}]") for i, n in enumerate(_list(x, where))]
     if len(set(names)) != len(names):
@@ -504,8 +517,7 @@ class TaskTargets(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> TaskTargets:
-        raw = _dict(_req(d, "targets", "TaskTargets"), "targets")
-        _names(list(raw), "targets", TARGET_NAMES)
+        raw = _table(_req(d, "targets", "TaskTargets"), "targets", TARGET_NAMES)
         targets = {}
         for n, t in raw.items():
             items = _list(t, f"targets.{n}", 6)
@@ -521,9 +533,7 @@ class TaskTargets(Message):
                 items[4],
                 items[5],
             )
-        raw_ua = _dict(d.get("ua", {}), "ua")
-        _names(list(raw_ua), "ua", SIDES)
-        upper_arms = {s: _quat(q, f"ua.{s}") for s, q in raw_ua.items()}
+        upper_arms = {s: _quat(q, f"ua.{s}") for s, q in _table(d.get("ua", {}), "ua", SIDES).items()}
         return cls(
             Header.from_wire(_req(d, "hdr", "TaskTargets")),
             targets,
@@ -635,20 +645,16 @@ class RobotState(Message):
     @classmethod
     def from_body(cls, d: dict) -> RobotState:
         hdr, joints, q, qd = _joints_from_wire(d, "RobotState")
-        frames_raw = _dict(_req(d, "frames", "RobotState"), "frames")
-        _names(list(frames_raw), "frames", TARGET_NAMES)
-        hold = d.get("hold", False)
-        if not isinstance(hold, bool):
-            raise MessageError("type", "hold: expected bool")
+        frames = _table(_req(d, "frames", "RobotState"), "frames", TARGET_NAMES)
         return cls(
             hdr,
             joints,
             q,
             qd,
-            {n: Pose.from_wire(v, f"frames.{n}") for n, v in frames_raw.items()},
+            {n: Pose.from_wire(v, f"frames.{n}") for n, v in frames.items()},
             _float(_req(d, "ts", "RobotState"), "ts"),
             _str(d.get("id", "main"), "id", 64),
-            hold,
+            _bool(d.get("hold", False), "hold"),
         )
 
 
