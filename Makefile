@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # Real mocap clips, read at run time from beside the repo (shared/paths.py reads the same setting).
 MIMIC_MOCAP_DIR ?= ../shared/data/mocap
 
-.PHONY: setup demo test test-docker lint format bench eval clean
+.PHONY: setup demo test test-docker test-browser lint format bench eval clean
 
 setup: $(STAMP)
 
@@ -29,6 +29,15 @@ test: setup
 # podman, builds a local base image and mimic:latest as root; MIMIC_ENGINE=docker uses a running Docker.
 test-docker: setup
 	tests/docker/engine.sh
+
+# A recording opened in the Rerun web viewer in headless Chromium (tests/logger/test_web_viewer.py).
+# Installs Debian's chromium when missing (apt-get, as root); software WebGL, no display or GPU needed.
+test-browser: setup
+	@command -v "$${MIMIC_CHROMIUM:-chromium}" >/dev/null || { \
+	  [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+	    || { echo "test-browser: chromium missing: install it (apt-get install chromium) or set MIMIC_CHROMIUM"; exit 1; }; \
+	  DEBIAN_FRONTEND=noninteractive apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; }
+	$(BIN)/python -m pytest -p no:cacheprovider -m browser tests/logger/test_web_viewer.py
 
 lint: setup
 	$(BIN)/ruff check .

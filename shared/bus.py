@@ -355,39 +355,57 @@ def ring_pump(
 class LatestSlot:
     """Keep only the newest ``depth`` messages (default 1: newest wins); count evicted ones as dropped.
 
+    With ``max_age`` [s], a message that waited longer than that while newer ones
+    arrived is stale: :meth:`take` skips it (counted as dropped), so a consumer that
+    fell behind catches up with the newest at once instead of working through the
+    queue (latency bounded by time, not by ``depth`` x its step time).
+
     With a ``decode`` function the slot stores raw payloads and decodes in
-    :meth:`take`, i.e. in the consumer's thread: the Zenoh callback stays
-    trivial, so a slow consumer can never make samples queue up (and latency
-    grow) inside Zenoh. Payloads that fail to decode are counted as rejected.
+    :meth:`take`, i.e. in the consumer's thread: the receiving thread stays
+    trivial. Payloads that fail to decode are counted as rejected.
     """
 
     def __init__(
-        self, status: StatusCounters | None = None, stream: str = "", decode: Callable | None = None, depth: int = 1
+        self,
+        status: StatusCounters | None = None,
+        stream: str = "",
+        decode: Callable | None = None,
+        depth: int = 1,
+        max_age: float | None = None,
     ):
         self._cond = threading.Condition()
-        self._items: deque[Any] = deque()
+        self._items: deque[tuple[float, Any]] = deque()  # (arrival, monotonic [s]; message)
         self._depth = max(1, int(depth))
+        self._max_age = max_age
         self._status = status
         self._stream = stream
         self._decode = decode
 
+    def _drop(self) -> None:
+        self._items.popleft()
+        if self._status is not None:
+            self._status.dropped(self._stream)
+
     def put(self, msg: Any) -> None:
         with self._cond:
             if len(self._items) >= self._depth:
-                self._items.popleft()
-                if self._status is not None:
-                    self._status.dropped(self._stream)
-            self._items.append(msg)
+                self._drop()
+            self._items.append((time.monotonic(), msg))
             self._cond.notify_all()
 
     def take(self, timeout: float | None = None) -> Any:
-        """Oldest kept unread message, waiting up to ``timeout`` [s]; None if none arrived (or it was invalid)."""
+        """Oldest kept unread message that is not stale, waiting up to ``timeout`` [s]; None if none arrived
+        (or it was invalid)."""
         with self._cond:
             if not self._items and timeout:
                 self._cond.wait(timeout)
             if not self._items:
                 return None
-            raw = self._items.popleft()
+            if self._max_age is not None:
+                oldest_fresh = time.monotonic() - self._max_age
+                while len(self._items) > 1 and self._items[0][0] < oldest_fresh:
+                    self._drop()
+            raw = self._items.popleft()[1]
         if self._decode is None:
             return raw
         try:
@@ -540,6 +558,7 @@ class ServiceRunner:
         stream: str,
         depth: int = 1,
         accept: Callable[[str], bool] | None = None,
+        max_age: float | None = None,
     ) -> LatestSlot:
         """Newest-wins mailbox (keeping ``depth`` messages) fed by a subscriber on ``key``.
 
@@ -548,8 +567,9 @@ class ServiceRunner:
         RING_MIN_CAPACITY samples that a receiver thread drains into the mailbox.
         ``accept(sample key)`` filters samples before they count as received (e.g. the
         sim keeps only the followed solver's commands); lost samples count as gaps either way.
+        ``max_age`` [s]: see :class:`LatestSlot`.
         """
-        slot = LatestSlot(self.status, stream, decode, depth)
+        slot = LatestSlot(self.status, stream, decode, depth, max_age)
         status = self.status
         watch = gap_watch(status, stream)
 

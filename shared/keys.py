@@ -47,7 +47,13 @@ class Keys:
     all_status = _SessionKey("**/status")
     all_alive = _SessionKey("alive/**")
     calibration = _SessionKey("retarget/calibration")
+    retarget_source = _SessionKey(
+        "retarget/source", "Queryable: which mocap source retarget follows (a payload chooses one)."
+    )
     sim_follow = _SessionKey("sim/follow", "Queryable: which solver id the sim follows.")
+    stack_solver = _SessionKey(
+        "stack/solver", "Queryable of ``mimic up``: replace the solver the sim follows (``mimic swap-solver``)."
+    )
     everything = _SessionKey("**")
 
     def __init__(self, session: str = DEFAULT_SESSION):

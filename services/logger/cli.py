@@ -72,6 +72,7 @@ def main(args: argparse.Namespace) -> int:
     from services.logger.robot_visual import RobotVisual
     from shared.bus import ServiceRunner
     from shared.robot.profile import ProfileError
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         rc, lc = configs(args)
@@ -79,7 +80,14 @@ def main(args: argparse.Namespace) -> int:
         if not rc.overwrite:
             rrd = unused_path(rrd)
         rrd.parent.mkdir(parents=True, exist_ok=True)
-        visual = RobotVisual(args.robot) if lc.meshes else None
+        if not lc.meshes:
+            visual = None
+        elif is_wheeled_profile(args.robot):  # no meshes: its MJCF primitives
+            from services.logger.wheeled_visual import WheeledVisual
+
+            visual = WheeledVisual(args.robot)
+        else:
+            visual = RobotVisual(args.robot)
     except (ProfileError, OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2

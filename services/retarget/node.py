@@ -1,9 +1,9 @@
 """Bus wiring of the retarget service: mocap frames in, task targets out.
 
 Subscribes HumanFrames on ``keys.mocap_frame`` (decoding and retargeting one frame costs
-~0.7 ms; a short queue absorbs jitter, and under overload the oldest are skipped and counted),
+~0.7 ms; a queue absorbs stalls, and frames gone stale behind newer ones are skipped and counted),
 publishes TaskTargets on ``keys.targets``, and
-serves two queryables:
+serves three queryables:
 
 * ``keys.calibration``: GET without payload returns the current calibration (msgpack
   map, see :meth:`Calibration.to_dict`; ``{"calibrated": false}`` before any). A
@@ -11,6 +11,9 @@ serves two queryables:
   payload ``{"action": "recalibrate"}`` re-runs the anthropometric calibration on the
   next usable frame (operator at rest).
 * ``keys.config("retarget")``: GET returns the configuration and workspace box.
+* ``keys.retarget_source``: GET returns ``{"follow", "chosen", "sources"}`` (the source
+  followed now, the one chosen explicitly or null, frames received per source); a payload (a
+  source name, or ``{"source": NAME}``; empty name: none chosen) chooses the source to follow.
 """
 
 from __future__ import annotations
@@ -29,9 +32,12 @@ from services.retarget.retargeter import Retargeter
 from shared.bus import ServiceRunner
 from shared.messages import HumanFrame, MessageError, parse_query
 
-#: Frames kept waiting for the worker before the oldest is skipped. Each adds a step of latency
-#: when the worker is behind (32 gave ~200 ms under a 10 kHz burst on 2 cores).
-FRAME_QUEUE = 4
+#: Frames kept waiting for the worker before the oldest is skipped (absorbs a stall: 0.27 s at 120 Hz).
+FRAME_QUEUE = 32
+#: A frame that waited longer than this [s] while newer ones arrived is skipped (counted as dropped):
+#: the solver only takes the newest target, so working through stale frames only adds latency
+#: (a 32-deep queue alone gave ~200 ms under a 10 kHz burst on 2 cores).
+FRAME_MAX_AGE = 0.1
 #: While frames are rejected as uncalibrated, say so (log warning) at most this often [s].
 UNCALIBRATED_LOG_PERIOD = 2.0
 
@@ -66,12 +72,15 @@ class RetargetNode:
         self._calibration_seen = retargeter.calibration
         self._pub = svc.publisher(svc.keys.targets)
         # Every frame is retargeted while we keep up; under overload (bursts faster than we can
-        # retarget) the oldest beyond FRAME_QUEUE are skipped and counted, so latency stays bounded.
-        self.frames = svc.subscribe_latest(svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE)
+        # retarget) stale frames are skipped and counted, so latency stays bounded.
+        self.frames = svc.subscribe_latest(
+            svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE, max_age=FRAME_MAX_AGE
+        )
         self._worker = threading.Thread(target=self._spin, name="retarget-worker", daemon=True)
         self._worker.start()
         svc.queryable(svc.keys.calibration, self.on_calibration)
         svc.queryable(svc.keys.config("retarget"), self.on_config)
+        svc.queryable(svc.keys.retarget_source, self.on_source)
 
     def _spin(self) -> None:
         while not self.svc.stop_event.is_set():
@@ -139,6 +148,24 @@ class RetargetNode:
         if cal is None:
             return msgpack.packb({"calibrated": False})
         return msgpack.packb({"calibrated": True, **cal.to_dict()})
+
+    def on_source(self, payload: bytes | None) -> bytes:
+        """Queryable handler: GET the followed source, a payload chooses it (see module doc)."""
+        if payload:
+            d = parse_query(payload)
+            name = d.get("source") if isinstance(d, dict) else d
+            if not isinstance(name, str):
+                raise ValueError(f"source payload: expected a name or {{'source': NAME}}, got {d!r}")
+            with self._lock:
+                self.retargeter.follow_source(name)
+            self.svc.log.info(
+                "source chosen by query: %s", repr(name) if name else "none (the first one seen is followed)"
+            )
+        with self._lock:
+            r = self.retargeter
+            return msgpack.packb(
+                {"follow": r.followed_source, "chosen": r.config.source or None, "sources": dict(r.sources_seen)}
+            )
 
     def on_config(self, payload: bytes | None) -> bytes:
         """Queryable handler: the configuration and workspace box (read-only)."""

@@ -59,11 +59,14 @@ from shared.wrist_only import is_wrist_only
 
 log = logging.getLogger(__name__)
 
+#: Source names whose frames are counted in ``sources_seen`` (a bound against a flood of names).
+MAX_SOURCES = 32
 #: What a source must send before it is retargeted (said with every ``uncalibrated`` reject).
 CALIBRATION_HINT = (
     "auto-calibration takes the first frame with shoulder, elbow and wrist of both arms, arms hanging at rest "
     "(one arm alone is accepted after 30 frames and mirrored); otherwise install one with "
-    "`mimic calibrate --file FILE` or start retarget with --calibration FILE"
+    "`mimic calibrate --file FILE` or start retarget with --calibration FILE; a wrist-only source (wrists, no "
+    "shoulders or elbows) calibrates from its first rest frame with an assumed arm length (retarget --arm-length)"
 )
 
 
@@ -223,6 +226,8 @@ class Retargeter:
         self._recalibrate = calibration is None and self.config.auto_calibrate
         self._calib_tries = 0
         self._ignored: set[str] = set()  # sources named once as ignored
+        #: frames received per source (the first MAX_SOURCES names), for "which sources are there?"
+        self.sources_seen: Counter[str] = Counter()
         self._source: str | None = None  # the followed source (kept across stream resets)
         self._source_t0 = 0  # t0 [ns] of the followed source's last frame
         self._reset_stream()
@@ -273,6 +278,24 @@ class Retargeter:
         self._rest_reach: dict[str, np.ndarray] = {}
         self._reset_stream()
         log.info("calibration installed (%s), mode %s", calibration.source, self.config.mode)
+
+    @property
+    def followed_source(self) -> str | None:
+        """The source whose frames are retargeted: the chosen one, else the one followed now (None: none yet)."""
+        return self.config.source or self._source
+
+    def follow_source(self, name: str) -> None:
+        """Follow source ``name`` from now on, explicitly ("": back to the first one seen).
+
+        Frames of every other source are then rejected as ``other_source``, each named once in
+        the log again (the choice changed what is ignored).
+        """
+        self.config.source = name
+        self._ignored.clear()
+        if name:
+            log.info("following source %r, chosen explicitly: frames of any other are rejected (other_source)", name)
+        else:
+            log.info("no source chosen: following the first one seen until it is silent")
 
     def request_recalibration(self) -> None:
         """Calibrate anthropometrically again from the next frame with valid arm bones."""
@@ -338,6 +361,8 @@ class Retargeter:
         """
         self.last_reject = None
         hdr = frame.hdr
+        if frame.source in self.sources_seen or len(self.sources_seen) < MAX_SOURCES:
+            self.sources_seen[frame.source] += 1
         if not self._follows(frame):
             return None
         if self._source is not None and frame.source != self._source:

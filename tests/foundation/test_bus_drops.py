@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 
@@ -75,6 +74,23 @@ def test_bounded_queue_keeps_order_and_drops_the_oldest_counted():
     assert st.count("dropped.frames") == 2
 
 
+def test_queue_skips_stale_messages_but_never_the_newest():
+    st = _status()
+    slot = LatestSlot(st, "frames", depth=32, max_age=0.05)
+    for i in range(3):
+        slot.put(i)
+    assert slot.take() == 0  # fresh: taken in order
+    time.sleep(0.08)
+    slot.put(3)
+    # 1 and 2 waited past max_age while 3 arrived: skipped and counted; 3 is taken.
+    assert [slot.take(), slot.take()] == [3, None]
+    assert st.count("dropped.frames") == 2
+    slot.put(4)
+    time.sleep(0.08)
+    assert slot.take() == 4  # stale but the newest: kept
+    assert st.count("dropped.frames") == 2
+
+
 def test_slot_decodes_on_take_once_and_counts_bad_payloads():
     st = _status()
     calls = []
@@ -96,16 +112,6 @@ def test_slot_decodes_on_take_once_and_counts_bad_payloads():
 
 
 # ----------------------------------------------------------------------------- on a real bus
-
-
-@pytest.fixture()
-def router(zenoh_endpoint):
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", json.dumps([zenoh_endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf):
-        yield zenoh_endpoint
 
 
 def _wait(pred, timeout: float = 20.0) -> bool:
