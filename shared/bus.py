@@ -23,6 +23,7 @@ the receiver's gap counter instead of vanishing.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -33,7 +34,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -623,6 +624,29 @@ def query_when_ready(session: zenoh.Session, key: str, timeout: float = 3.0, int
         except RuntimeError as exc:
             if "no reply" not in str(exc) or time.monotonic() >= deadline:
                 raise
+
+
+class StackAbsentError(RuntimeError):
+    """A control command found nobody serving the queryable it talks to (message: one line)."""
+
+
+@contextlib.contextmanager
+def control_session(
+    args: argparse.Namespace, key: str, timeout: float, who: str
+) -> Iterator[tuple[zenoh.Session, bytes]]:
+    """A control command's session and the current state served on ``key`` (GET, retried until routed).
+
+    Args:
+        args: bus arguments (``add_bus_args``). who: what serves ``key``, for the error ("no sim").
+    Raises:
+        StackAbsentError: nothing answered within ``timeout`` [s]; says who, the session and what to check.
+    """
+    with open_session(args) as z:
+        try:
+            state = query_when_ready(z, key, timeout)
+        except RuntimeError as exc:
+            raise StackAbsentError(f"{who} answered on session {args.session!r} ({exc})") from None
+        yield z, state
 
 
 def setup_logging(level: str | int = "INFO", prefix: str = "") -> None:

@@ -16,7 +16,7 @@ import logging
 
 import msgpack
 
-from shared.bus import add_bus_args, open_session, query, query_when_ready
+from shared.bus import StackAbsentError, add_bus_args, control_session, query
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.swap")
@@ -31,23 +31,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     key = Keys(args.session).stack_solver
-    with open_session(args) as z:
-        try:
-            reply = query_when_ready(z, key, 3.0)  # GET: finds the route, and says what runs now
-        except RuntimeError as exc:
-            log.error(
-                "no mimic up answered on session %r (%s): swap-solver replaces solvers of a stack started with "
-                "mimic up; elsewhere start one with mimic solve --id ID and switch with mimic follow ID",
-                args.session,
-                exc,
-            )
-            return 1
-        if args.algo is not None:
-            request = {"algo": args.algo} | ({"id": args.id} if args.id else {})
-            try:
-                reply = query(z, key, msgpack.packb(request), timeout=args.timeout)
-            except RuntimeError as exc:
-                log.error("%s", str(exc).removeprefix(f"query {key} failed: "))
-                return 1
+    try:
+        with control_session(args, key, 3.0, "no mimic up") as (z, reply):  # GET: says what runs now
+            if args.algo is not None:
+                request = {"algo": args.algo} | ({"id": args.id} if args.id else {})
+                try:
+                    reply = query(z, key, msgpack.packb(request), timeout=args.timeout)
+                except RuntimeError as exc:
+                    log.error("%s", str(exc).removeprefix(f"query {key} failed: "))
+                    return 1
+    except StackAbsentError as exc:
+        log.error(
+            "%s: swap-solver replaces solvers of a stack started with mimic up; elsewhere start one with "
+            "mimic solve --id ID and switch with mimic follow ID",
+            exc,
+        )
+        return 1
     print(json.dumps(msgpack.unpackb(reply)))
     return 0

@@ -18,7 +18,7 @@ import logging
 
 import msgpack
 
-from shared.bus import add_bus_args, open_session, query, query_when_ready
+from shared.bus import add_bus_args, control_session, query
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.source")
@@ -35,10 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     key = Keys(args.session).retarget_source
-    with open_session(args) as z:
-        try:
-            before = msgpack.unpackb(query_when_ready(z, key, args.timeout))
-            now = before
+    try:
+        with control_session(args, key, args.timeout, "no retarget") as (z, state):
+            now = before = msgpack.unpackb(state)
             if args.name is not None or args.auto:
                 name = "" if args.auto else args.name
                 if name and name not in before["sources"] and not args.force:
@@ -51,11 +50,9 @@ def main(args: argparse.Namespace) -> int:
                     )
                     return 1
                 now = msgpack.unpackb(query(z, key, msgpack.packb({"source": name}), timeout=args.timeout))
-        except RuntimeError as exc:
-            log.error(
-                "no retarget answered on session %r (%s): is the stack up on this endpoint/session?", args.session, exc
-            )
-            return 1
+    except RuntimeError as exc:  # StackAbsentError, or retarget refused
+        log.error("%s: is the stack up on this endpoint/session?", exc)
+        return 1
     print(
         json.dumps(
             {"follow": now["follow"], "chosen": now["chosen"], "was": before["follow"]} | {"sources": now["sources"]}

@@ -14,7 +14,7 @@ import logging
 
 import msgpack
 
-from shared.bus import add_bus_args, open_session, query, query_when_ready
+from shared.bus import add_bus_args, control_session, query
 from shared.keys import Keys
 
 log = logging.getLogger("mimic.follow")
@@ -42,9 +42,9 @@ def alive_solvers(z, keys: Keys, wait: float = 0.5) -> list[str]:
 
 def main(args: argparse.Namespace) -> int:
     keys = Keys(args.session)
-    with open_session(args) as z:
-        try:
-            before = msgpack.unpackb(query_when_ready(z, keys.sim_follow, args.timeout))["follow"]
+    try:
+        with control_session(args, keys.sim_follow, args.timeout, "no sim") as (z, state):
+            before = msgpack.unpackb(state)["follow"]
             solvers = alive_solvers(z, keys)
             if args.id is not None and args.id != before:
                 if args.id not in solvers and not args.force:
@@ -58,11 +58,9 @@ def main(args: argparse.Namespace) -> int:
                     )
                     return 1
                 query(z, keys.sim_follow, args.id.encode(), timeout=args.timeout)
-        except RuntimeError as exc:
-            log.error(
-                "no sim answered on session %r (%s): is the stack up on this endpoint/session?", args.session, exc
-            )
-            return 1
+    except RuntimeError as exc:  # StackAbsentError, or the sim refused
+        log.error("%s: is the stack up on this endpoint/session?", exc)
+        return 1
     now = args.id or before
     print(json.dumps({"follow": now, "was": before, "solvers_alive": solvers}))
     return 0
