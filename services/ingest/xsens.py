@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from services.ingest.body_frame import UNIT_SCALES
 from services.ingest.rotations import matrices_to_quats, quats_to_matrices
 from shared.messages import Bone, Header, HumanFrame, Pose
 
@@ -64,7 +65,6 @@ BONE_SEGMENTS: dict[str, str] = {
         for bone, seg in (("clavicle", "Shoulder"), ("shoulder", "UpperArm"), ("elbow", "ForeArm"), ("wrist", "Hand"))
     },
 }
-_UNITS = {"cm": 0.01, "m": 1.0, "mm": 0.001}
 
 
 class MvnError(ValueError):
@@ -169,8 +169,8 @@ class MvnDecoder:
     _parts: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.units not in _UNITS:
-            raise ValueError(f"units {self.units!r}; choose one of {list(_UNITS)}")
+        if self.units not in UNIT_SCALES:
+            raise ValueError(f"units {self.units!r}; choose one of {list(UNIT_SCALES)}")
 
     def step(self, data: bytes, t0_ns: int) -> HumanFrame | None:
         """Feed one datagram; return a frame when a sample is complete.
@@ -202,7 +202,7 @@ class MvnDecoder:
         by_name = {SEGMENTS[s]: v for s, v in segs.items() if s in SEGMENTS}
         if "Pelvis" not in by_name:
             raise MvnError("mvn_no_pelvis", f"sample {hdr.sample_counter}: no Pelvis segment (ID 1)")
-        scale = _UNITS[self.units]
+        scale = UNIT_SCALES[self.units]
         p_root = by_name["Pelvis"][0] * scale
         q_root = by_name["Pelvis"][1]
         n_root = np.linalg.norm(q_root)
