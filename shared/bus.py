@@ -180,22 +180,23 @@ class StatusCounters:
         self._last_error = ""
 
     def _count(self, name: str, n: int = 1) -> None:
+        """Add ``n`` to counter ``name``; the caller holds the lock."""
+        self._counts[name] = self._counts.get(name, 0) + n
+
+    def _stream(self, kind: str, stream: str, n: int = 1, rate: str | None = None) -> None:
+        """Count ``n`` messages as ``kind`` in total and per stream (``kind.stream``); tick rate ``rate.stream``."""
+        now = time.monotonic()
         with self._lock:
-            self._counts[name] = self._counts.get(name, 0) + n
+            self._count(kind, n)
+            self._count(f"{kind}.{stream}", n)
+            if rate is not None:
+                self._rates.setdefault(f"{rate}.{stream}", _Rate()).tick(now)
 
     def received(self, stream: str) -> None:
-        now = time.monotonic()
-        with self._lock:
-            self._counts["received"] = self._counts.get("received", 0) + 1
-            self._counts[f"received.{stream}"] = self._counts.get(f"received.{stream}", 0) + 1
-            self._rates.setdefault(f"in.{stream}", _Rate()).tick(now)
+        self._stream("received", stream, rate="in")
 
     def published(self, stream: str) -> None:
-        now = time.monotonic()
-        with self._lock:
-            self._counts["published"] = self._counts.get("published", 0) + 1
-            self._counts[f"published.{stream}"] = self._counts.get(f"published.{stream}", 0) + 1
-            self._rates.setdefault(f"out.{stream}", _Rate()).tick(now)
+        self._stream("published", stream, rate="out")
 
     def outcome(self, name: str) -> None:
         """Count one result of the service's own work (e.g. a command's status), apart from messages."""
@@ -204,20 +205,18 @@ class StatusCounters:
 
     def dropped(self, stream: str, n: int = 1) -> None:
         """Count messages this service received and discarded on purpose (newest-wins, full queue)."""
-        self._count("dropped", n)
-        self._count(f"dropped.{stream}", n)
+        self._stream("dropped", stream, n)
 
     def gaps(self, stream: str, n: int) -> None:
         """Count messages that never arrived (publisher numbers skipped: lost in Zenoh or a router)."""
-        self._count("gaps", n)
-        self._count(f"gaps.{stream}", n)
+        self._stream("gaps", stream, n)
 
     def reject(self, reason: str, detail: str) -> None:
         """Count a rejected input; log the first of each reason (then every 1000th)."""
         with self._lock:
             k = self._rejects.get(reason, 0) + 1
             self._rejects[reason] = k
-            self._counts["rejected"] = self._counts.get("rejected", 0) + 1
+            self._count("rejected")
             self._last_error = f"{reason}: {detail}"[:1000]
         if k == 1 or k % 1000 == 0:
             self._log.warning("rejected input (%s, #%d): %s", reason, k, detail)
@@ -225,7 +224,7 @@ class StatusCounters:
     def error(self, text: str) -> None:
         with self._lock:
             self._last_error = text[:1000]
-            self._counts["errors"] = self._counts.get("errors", 0) + 1
+            self._count("errors")
         self._log.error("%s", text)
 
     def count(self, name: str) -> int:

@@ -7,6 +7,7 @@ experiments sharing one bus; it must be a single key chunk.
 from __future__ import annotations
 
 import re
+from typing import overload
 
 ROOT = "mimic"
 DEFAULT_SESSION = "default"
@@ -19,34 +20,49 @@ def _chunk(value: str, what: str) -> str:
     return value
 
 
+class _SessionKey:
+    """A fixed key of a session, read as an attribute: ``keys.targets`` -> ``mimic/<session>/retarget/targets``."""
+
+    def __init__(self, suffix: str, doc: str = ""):
+        self.suffix = suffix
+        self.__doc__ = doc or f"``mimic/<session>/{suffix}``"
+
+    @overload
+    def __get__(self, keys: None, owner: type) -> _SessionKey: ...
+    @overload
+    def __get__(self, keys: Keys, owner: type) -> str: ...
+    def __get__(self, keys: Keys | None, owner: type) -> str | _SessionKey:
+        return self if keys is None else f"{keys.prefix}/{self.suffix}"
+
+
 class Keys:
     """All key expressions of one session."""
+
+    # data streams
+    mocap_frame = _SessionKey("mocap/frame")
+    targets = _SessionKey("retarget/targets")
+    all_commands = _SessionKey("solver/*/command")
+    sim_state = _SessionKey("sim/state")
+    # health and control
+    all_status = _SessionKey("**/status")
+    all_alive = _SessionKey("alive/**")
+    calibration = _SessionKey("retarget/calibration")
+    retarget_source = _SessionKey(
+        "retarget/source", "Queryable: which mocap source retarget follows (a payload chooses one)."
+    )
+    sim_follow = _SessionKey("sim/follow", "Queryable: which solver id the sim follows.")
+    stack_solver = _SessionKey(
+        "stack/solver", "Queryable of ``mimic up``: replace the solver the sim follows (``mimic swap-solver``)."
+    )
+    everything = _SessionKey("**")
 
     def __init__(self, session: str = DEFAULT_SESSION):
         self.session = _chunk(session, "session")
         self.prefix = f"{ROOT}/{self.session}"
 
-    # data streams
-    @property
-    def mocap_frame(self) -> str:
-        return f"{self.prefix}/mocap/frame"
-
-    @property
-    def targets(self) -> str:
-        return f"{self.prefix}/retarget/targets"
-
     def command(self, solver_id: str) -> str:
         return f"{self.prefix}/solver/{_chunk(solver_id, 'solver id')}/command"
 
-    @property
-    def all_commands(self) -> str:
-        return f"{self.prefix}/solver/*/command"
-
-    @property
-    def sim_state(self) -> str:
-        return f"{self.prefix}/sim/state"
-
-    # health and control
     def status(self, service: str, instance: str | None = None) -> str:
         svc = _chunk(service, "service")
         return (
@@ -55,33 +71,12 @@ class Keys:
             else f"{self.prefix}/{svc}/{_chunk(instance, 'instance')}/status"
         )
 
-    @property
-    def all_status(self) -> str:
-        return f"{self.prefix}/**/status"
-
     def alive(self, service: str, instance: str) -> str:
         return f"{self.prefix}/alive/{_chunk(service, 'service')}/{_chunk(instance, 'instance')}"
-
-    @property
-    def all_alive(self) -> str:
-        return f"{self.prefix}/alive/**"
 
     def config(self, service: str) -> str:
         """Queryable returning (GET) or setting (payload) a service's config."""
         return f"{self.prefix}/{_chunk(service, 'service')}/config"
-
-    @property
-    def calibration(self) -> str:
-        return f"{self.prefix}/retarget/calibration"
-
-    @property
-    def sim_follow(self) -> str:
-        """Queryable: which solver id the sim follows."""
-        return f"{self.prefix}/sim/follow"
-
-    @property
-    def everything(self) -> str:
-        return f"{self.prefix}/**"
 
     @staticmethod
     def all_sessions() -> str:

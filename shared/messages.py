@@ -179,6 +179,19 @@ def _dict(x: Any, where: str) -> dict:
     return x
 
 
+def _bool(x: Any, where: str) -> bool:
+    if not isinstance(x, bool):
+        raise MessageError("type", f"{where}: expected bool")
+    return x
+
+
+def _table(x: Any, where: str, known: tuple[str, ...]) -> dict:
+    """A map keyed by unique names out of ``known`` (its values are the caller's to check)."""
+    raw = _dict(x, where)
+    _names(list(raw), where, known)
+    return raw
+
+
 def _names(x: Any, where: str, known: tuple[str, ...] | None) -> list[str]:
     names = [_str(n, f"{where}[{i}]") for i, n in enumerate(_list(x, where))]
     if len(set(names)) != len(names):
@@ -194,6 +207,19 @@ def _fl(a: np.ndarray) -> list[float]:
     # tolist() converts in C: the same Python floats as a per-element float(), several times faster
     # (every message on the bus is encoded through here, on the services' hot paths).
     return np.asarray(a, dtype=float).ravel().tolist()
+
+
+def _joints_to_wire(joints: list[str], q: np.ndarray, qd: np.ndarray) -> dict:
+    """Wire fields of a named joint vector: names, q (n,) [rad], qd (n,) [rad/s]."""
+    return {"joints": list(joints), "q": _fl(q), "qd": _fl(qd)}
+
+
+def _joints_from_wire(d: dict, where: str) -> tuple[Header, list[str], np.ndarray, np.ndarray]:
+    """(header, joints, q (n,), qd (n,)) of a message body: unique names, q and qd of the same length."""
+    joints = _names(_req(d, "joints", where), "joints", None)
+    q = _vec(_req(d, "q", where), "q", len(joints))
+    qd = _vec(_req(d, "qd", where), "qd", len(joints))
+    return Header.from_wire(_req(d, "hdr", where)), joints, q, qd
 
 
 # --------------------------------------------------------------------------- building blocks
@@ -491,8 +517,7 @@ class TaskTargets(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> TaskTargets:
-        raw = _dict(_req(d, "targets", "TaskTargets"), "targets")
-        _names(list(raw), "targets", TARGET_NAMES)
+        raw = _table(_req(d, "targets", "TaskTargets"), "targets", TARGET_NAMES)
         targets = {}
         for n, t in raw.items():
             items = _list(t, f"targets.{n}", 6)
@@ -508,9 +533,7 @@ class TaskTargets(Message):
                 items[4],
                 items[5],
             )
-        raw_ua = _dict(d.get("ua", {}), "ua")
-        _names(list(raw_ua), "ua", SIDES)
-        upper_arms = {s: _quat(q, f"ua.{s}") for s, q in raw_ua.items()}
+        upper_arms = {s: _quat(q, f"ua.{s}") for s, q in _table(d.get("ua", {}), "ua", SIDES).items()}
         return cls(
             Header.from_wire(_req(d, "hdr", "TaskTargets")),
             targets,
@@ -554,9 +577,7 @@ class JointCommand(Message):
             "hdr": self.hdr.to_wire(),
             "id": self.solver_id,
             "algo": self.algo,
-            "joints": list(self.joints),
-            "q": _fl(self.q),
-            "qd": _fl(self.qd),
+            **_joints_to_wire(self.joints, self.q, self.qd),
             "res": [float(r) for r in self.residuals],
             "ms": float(self.solve_ms),
             "status": self.status,
@@ -568,14 +589,12 @@ class JointCommand(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> JointCommand:
-        joints = _names(_req(d, "joints", "JointCommand"), "joints", None)
-        q = _vec(_req(d, "q", "JointCommand"), "q", len(joints))
-        qd = _vec(_req(d, "qd", "JointCommand"), "qd", len(joints))
+        hdr, joints, q, qd = _joints_from_wire(d, "JointCommand")
         status = _str(_req(d, "status", "JointCommand"), "status")
         if status not in COMMAND_STATUSES:
             raise MessageError("unknown_name", f"status {status!r}; known: {list(COMMAND_STATUSES)}")
         return cls(
-            Header.from_wire(_req(d, "hdr", "JointCommand")),
+            hdr,
             _str(_req(d, "id", "JointCommand"), "id", 64),
             _str(_req(d, "algo", "JointCommand"), "algo", 64),
             joints,
@@ -616,9 +635,7 @@ class RobotState(Message):
     def body(self) -> dict:
         return {
             "hdr": self.hdr.to_wire(),
-            "joints": list(self.joints),
-            "q": _fl(self.q),
-            "qd": _fl(self.qd),
+            **_joints_to_wire(self.joints, self.q, self.qd),
             "frames": {n: p.to_wire() for n, p in self.frames.items()},
             "ts": float(self.sim_time),
             "id": self.solver_id,
@@ -627,21 +644,17 @@ class RobotState(Message):
 
     @classmethod
     def from_body(cls, d: dict) -> RobotState:
-        joints = _names(_req(d, "joints", "RobotState"), "joints", None)
-        frames_raw = _dict(_req(d, "frames", "RobotState"), "frames")
-        _names(list(frames_raw), "frames", TARGET_NAMES)
-        hold = d.get("hold", False)
-        if not isinstance(hold, bool):
-            raise MessageError("type", "hold: expected bool")
+        hdr, joints, q, qd = _joints_from_wire(d, "RobotState")
+        frames = _table(_req(d, "frames", "RobotState"), "frames", TARGET_NAMES)
         return cls(
-            Header.from_wire(_req(d, "hdr", "RobotState")),
+            hdr,
             joints,
-            _vec(_req(d, "q", "RobotState"), "q", len(joints)),
-            _vec(_req(d, "qd", "RobotState"), "qd", len(joints)),
-            {n: Pose.from_wire(v, f"frames.{n}") for n, v in frames_raw.items()},
+            q,
+            qd,
+            {n: Pose.from_wire(v, f"frames.{n}") for n, v in frames.items()},
             _float(_req(d, "ts", "RobotState"), "ts"),
             _str(d.get("id", "main"), "id", 64),
-            hold,
+            _bool(d.get("hold", False), "hold"),
         )
 
 

@@ -32,6 +32,8 @@ class TargetScorer:
         self._max_pending = max_pending
         self._last_t0 = 0
         self._last_state: RobotState | None = None
+        #: The state the last returned score is of (its ``hdr`` names the frame).
+        self.scored: RobotState | None = None
 
     def add_targets(self, tt: TaskTargets) -> None:
         self._targets[tt.hdr.t0] = tt
@@ -73,4 +75,5 @@ class TargetScorer:
     def flush(self) -> dict[str, float] | None:
         """Score the last state held (at the end of a run); None if there is none or no targets."""
         st, self._last_state = self._last_state, None
+        self.scored = st
         return None if st is None else self.errors(st)

@@ -1,4 +1,4 @@
-"""Shared fixtures: the real mocap data handed beside the repo, free ports."""
+"""Shared fixtures: the real mocap data handed beside the repo, free ports, a router, the G1 models."""
 
 from __future__ import annotations
 
@@ -46,6 +46,21 @@ def zenoh_endpoint() -> str:
 
 
 @pytest.fixture()
+def router(zenoh_endpoint):
+    """A Zenoh router inside the test process (``mimic router``'s config) on a fresh loopback endpoint.
+
+    Yields:
+        the endpoint clients connect to, e.g. ``tcp/127.0.0.1:PORT``.
+    """
+    import zenoh
+
+    from services.router.cli import router_config
+
+    with zenoh.open(router_config([zenoh_endpoint], None)):
+        yield zenoh_endpoint
+
+
+@pytest.fixture()
 def local_stack(zenoh_endpoint):
     """A :class:`LocalStack` on a fresh loopback router and session; stopped after the test.
 
@@ -64,3 +79,19 @@ def mocap_sources(mocap_dir):
     from tests.support.mocap_sources import MocapSources
 
     return MocapSources.read(mocap_dir)
+
+
+@pytest.fixture(scope="session")
+def robot17():
+    """The default robot (G1) with its waist: 17 controlled joints."""
+    from shared.robot.pinocchio_model import build_robot_model
+
+    return build_robot_model()
+
+
+@pytest.fixture(scope="session")
+def robot14():
+    """The G1 reduced to the 14 arm joints (waist at rest)."""
+    from shared.robot.pinocchio_model import build_robot_model
+
+    return build_robot_model(with_waist=False)

@@ -19,6 +19,9 @@ User map file (``--skeleton-map FILE``), TOML or JSON with the same keys::
     [hips]                       # optional; else the shoulders orient the pelvis
     left = "L_Thigh"
     right = "R_Thigh"
+
+An optional ``namespace`` (e.g. ``"mixamorig"``) breaks ties between maps that fit equally well.
+The built-in maps are written in this format in ``skeleton_maps.toml``.
 """
 
 from __future__ import annotations
@@ -91,93 +94,50 @@ class SkeletonMap:
         return bones, hips
 
 
-def _side(fmt: str, cands: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
-    """Expand ``{side}``/``{S}``/``{s}`` templates for both sides."""
-    out = {}
-    for side, S, s in (("left", "Left", "L"), ("right", "Right", "R")):
-        for bone, names in cands.items():
-            out[fmt.format(side=side, bone=bone)] = tuple(n.format(S=S, s=s) for n in names)
-    return out
+def map_from_table(data: dict, default_name: str, where: str) -> SkeletonMap:
+    """A skeleton map from its table (the map file format in the module docstring).
+
+    Args:
+        default_name: the name when the table gives none.
+        where: what to name in errors (the file, and the map's table in it).
+
+    Raises:
+        SkeletonMapError: unknown canonical names, wrong types.
+    """
+
+    def cands(v, key) -> tuple[str, ...]:
+        return name_list(v, f"skeleton map {where}: {key} must be a joint name", SkeletonMapError)
+
+    raw = data.get("bones")
+    if not isinstance(raw, dict) or not raw:
+        raise SkeletonMapError(f"skeleton map {where}: missing [bones] table (canonical bone -> joint name)")
+    unknown = [b for b in raw if b not in HUMAN_BONES]
+    if unknown:
+        raise SkeletonMapError(f"skeleton map {where}: unknown canonical bones {unknown}; known: {list(HUMAN_BONES)}")
+    hips_raw = data.get("hips", {})
+    if not isinstance(hips_raw, dict) or set(hips_raw) - {"left", "right"}:
+        raise SkeletonMapError(f"skeleton map {where}: [hips] takes only 'left' and 'right'")
+    namespace = data.get("namespace", "")
+    if not isinstance(namespace, str):
+        raise SkeletonMapError(f"skeleton map {where}: namespace must be a text")
+    return SkeletonMap(
+        str(data.get("name", default_name)),
+        {b: cands(v, f"bones.{b}") for b, v in raw.items()},
+        {s: cands(v, f"hips.{s}") for s, v in hips_raw.items()},
+        namespace=namespace,
+    )
 
 
-def _arm(clav, sh, el, wr, hand) -> dict[str, tuple[str, ...]]:
-    return _side("{side}_{bone}", {"clavicle": clav, "shoulder": sh, "elbow": el, "wrist": wr, "hand": hand})
+#: The built-in maps' file (the user map format, one table per map, in detection order).
+BUILTIN_MAP_FILE = Path(__file__).with_name("skeleton_maps.toml")
 
 
-BANDAI = SkeletonMap(
-    "bandai",
-    {
-        "pelvis": ("Hips",),
-        "spine": ("Spine",),
-        "chest": ("Chest",),
-        "neck": ("Neck",),
-        "head": ("Head",),
-        **_arm(("Shoulder_{s}",), ("UpperArm_{s}",), ("LowerArm_{s}",), ("Hand_{s}",), ("Hand_{s}/end",)),
-    },
-    {"left": ("UpperLeg_L",), "right": ("UpperLeg_R",)},
-)
+def _builtin_maps() -> tuple[SkeletonMap, ...]:
+    tables = read_map_file(BUILTIN_MAP_FILE, "skeleton map", SkeletonMapError)
+    return tuple(map_from_table(t, name, f"{BUILTIN_MAP_FILE} [{name}]") for name, t in tables.items())
 
-#: CMU in the cgspeed / Bruce Hahne BVH conversion.
-CMU = SkeletonMap(
-    "cmu",
-    {
-        "pelvis": ("Hips",),
-        "spine": ("Spine", "LowerBack"),
-        "chest": ("Spine1", "Spine"),
-        "neck": ("Neck", "Neck1"),
-        "head": ("Head",),
-        **_arm(
-            ("{S}Shoulder",),
-            ("{S}Arm",),
-            ("{S}ForeArm",),
-            ("{S}Hand",),
-            ("{S}HandIndex1/end", "{S}HandIndex1", "{S}FingerBase/end", "{S}Hand/end"),
-        ),
-    },
-    {"left": ("LeftUpLeg", "LHipJoint"), "right": ("RightUpLeg", "RHipJoint")},
-)
 
-MIXAMO = SkeletonMap(
-    "mixamo",
-    {
-        "pelvis": ("Hips",),
-        "spine": ("Spine1", "Spine"),
-        "chest": ("Spine2", "Spine1"),
-        "neck": ("Neck",),
-        "head": ("Head",),
-        **_arm(
-            ("{S}Shoulder",),
-            ("{S}Arm",),
-            ("{S}ForeArm",),
-            ("{S}Hand",),
-            ("{S}HandMiddle4", "{S}HandMiddle3/end", "{S}HandMiddle1", "{S}Hand/end"),
-        ),
-    },
-    {"left": ("LeftUpLeg",), "right": ("RightUpLeg",)},
-    namespace="mixamorig",
-)
-
-#: Xsens MVN segment names (MVNX / network streaming / MVN BVH with segment names).
-XSENS_MVN = SkeletonMap(
-    "xsens_mvn",
-    {
-        "pelvis": ("Pelvis", "Hips"),
-        "spine": ("L3", "L5"),
-        "chest": ("T8", "T12"),
-        "neck": ("Neck",),
-        "head": ("Head",),
-        **_arm(
-            ("{S}Shoulder",),
-            ("{S}UpperArm",),
-            ("{S}ForeArm",),
-            ("{S}Hand",),
-            ("{S}Hand/end",),
-        ),
-    },
-    {"left": ("LeftUpperLeg",), "right": ("RightUpperLeg",)},
-)
-
-BUILTIN_MAPS: tuple[SkeletonMap, ...] = (BANDAI, CMU, MIXAMO, XSENS_MVN)
+BUILTIN_MAPS: tuple[SkeletonMap, ...] = _builtin_maps()
 
 
 def detect_map(
@@ -220,22 +180,4 @@ def load_skeleton_map(path: str | Path) -> SkeletonMap:
         SkeletonMapError: unreadable file, unknown canonical names, wrong types.
     """
     path = Path(path)
-    data = read_map_file(path, "skeleton map", SkeletonMapError)
-
-    def cands(v, where) -> tuple[str, ...]:
-        return name_list(v, f"skeleton map {path}: {where} must be a joint name", SkeletonMapError)
-
-    raw = data.get("bones")
-    if not isinstance(raw, dict) or not raw:
-        raise SkeletonMapError(f"skeleton map {path}: missing [bones] table (canonical bone -> joint name)")
-    unknown = [b for b in raw if b not in HUMAN_BONES]
-    if unknown:
-        raise SkeletonMapError(f"skeleton map {path}: unknown canonical bones {unknown}; known: {list(HUMAN_BONES)}")
-    hips_raw = data.get("hips", {})
-    if not isinstance(hips_raw, dict) or set(hips_raw) - {"left", "right"}:
-        raise SkeletonMapError(f"skeleton map {path}: [hips] takes only 'left' and 'right'")
-    return SkeletonMap(
-        str(data.get("name", path.stem)),
-        {b: cands(v, f"bones.{b}") for b, v in raw.items()},
-        {s: cands(v, f"hips.{s}") for s, v in hips_raw.items()},
-    )
+    return map_from_table(read_map_file(path, "skeleton map", SkeletonMapError), path.stem, str(path))

@@ -15,11 +15,13 @@ import signal
 import sys
 import threading
 import time
+import tomllib
 from pathlib import Path
 
 from services.launcher.local_stack import LocalStack
-from services.launcher.monitor import BusMonitor
+from services.launcher.monitor import STARTUP_S, BusMonitor
 from services.launcher.session_lock import SessionBusyError, SessionLock
+from services.launcher.solver_swap import SolverSwap
 from services.launcher.stack import ROUTER_SERVICE, select
 from shared.bus import DEFAULT_ROUTER, free_port
 from shared.paths import REPO_ROOT, unused_path
@@ -42,7 +44,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true", help="restart crashed services with exponential backoff")
     p.add_argument("--clips", nargs="*", default=None, help="with --demo: play these clips instead of the bundled ones")
     p.add_argument("--rate", type=float, default=1.0, help="with --demo: playback speed factor")
-    p.add_argument("--summary", default=None, help="summary JSON path (default runs/<session>_summary.json)")
+    p.add_argument(
+        "--summary",
+        default=None,
+        help="summary JSON path (default runs/<recording name>_summary.json); an existing file is kept and the "
+        "summary goes to the first free <name>-<n>.json, unless --overwrite",
+    )
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing recording and summary instead of numbering"
+    )
     p.add_argument("--ready-timeout", type=float, default=90.0, help="seconds to wait for every service to come up")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (without --demo)")
     p.add_argument(
@@ -51,6 +61,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run beside a stack already up: a free loopback port and the first free session <session>-<n>",
     )
     p.add_argument("--compose", default=None, help="compose file to read (default: the repo's docker-compose.yml)")
+    p.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile name or TOML file for every service (default $MIMIC_ROBOT, else the G1)",
+    )
 
 
 def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
@@ -78,6 +93,11 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
+    try:
+        robot = check_robot(args.robot or os.environ.get("MIMIC_ROBOT") or None)
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 1
     endpoint = args.endpoint
     if args.beside:
         endpoint, session = f"tcp/127.0.0.1:{free_port()}", _free_session(run_dir, session)
@@ -88,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
             out=sys.stdout,
             restart=args.restart,
             compose=Path(args.compose) if args.compose else None,
+            env={"MIMIC_ROBOT": robot} if robot else None,
         )
     except (SessionBusyError, ValueError, OSError) as exc:
         log.error("%s", exc)
@@ -100,14 +121,16 @@ def main(args: argparse.Namespace) -> int:
         return 1
     names = [s.name for s in specs if s.name != ROUTER_SERVICE]
     # Never overwrite an earlier recording of the session: the next free runs/<session>[-n].rrd.
-    rrd = unused_path(run_dir / f"{session}.rrd")
-    extra = {"logger": ["--rrd", str(rrd)]}
-    monitor = None
+    rrd = run_dir / f"{session}.rrd"
+    rrd = rrd if args.overwrite else unused_path(rrd)
+    extra = {"logger": ["--rrd", str(rrd), *(["--overwrite"] if args.overwrite else [])]}
+    monitor = swap = None
     code = 0
     try:
         stack.start_router()
-        monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits())
+        monitor = BusMonitor(stack.bus, stack.keys, *_joint_limits(robot))
         stack.start_all(names, extra=extra, timeout=args.ready_timeout, stop=stop)
+        swap = SolverSwap(stack)  # mimic swap-solver
         log.info(
             "stack up on session %r, router %s: %s (recording %s)",
             session,
@@ -140,6 +163,7 @@ def main(args: argparse.Namespace) -> int:
                 )
                 while stack.running(name) and not stop.is_set():
                     stack.sup.poll()
+                    swap.poll()
                     time.sleep(0.05)
                 stack.sup.poll()
             time.sleep(1.5)  # let the last frames drain through solver, sim and logger
@@ -147,11 +171,14 @@ def main(args: argparse.Namespace) -> int:
             t_end = time.monotonic() + args.duration if args.duration else None
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
                 stack.sup.poll()
+                swap.poll()
                 time.sleep(0.1)
     except RuntimeError as exc:
         log.error("%s", exc)
         code = 1
     finally:
+        if swap:
+            swap.close()
         codes = stack.stop(last=STOP_LAST, timeouts={"logger": LOGGER_STOP_S})
         summary = monitor.summary() if monitor else {}  # with the services' last status, sent while stopping
         if monitor:
@@ -160,11 +187,20 @@ def main(args: argparse.Namespace) -> int:
         summary["exit_codes"] = codes
         summary["session"] = session
         summary["recording"] = str(rrd) if rrd.exists() else None
-        path = Path(args.summary) if args.summary else run_dir / f"{session}_summary.json"
+        path = summary_path(args, rrd)
         path.write_text(json.dumps(summary, indent=2))
+        log.info("summary written: %s", path)
         if args.demo or args.summary:
             _print_summary(summary, path)
     return code
+
+
+def summary_path(args: argparse.Namespace, rrd: Path) -> Path:
+    """Where this run's summary goes: ``--summary`` or ``<recording stem>_summary.json`` beside the
+    recording (so ``demo-1.rrd`` pairs with ``demo-1_summary.json``), never over an earlier file
+    unless ``--overwrite`` (the recordings' rule, :func:`shared.paths.unused_path`)."""
+    path = Path(args.summary) if args.summary else rrd.with_name(f"{rrd.stem}_summary.json")
+    return path if args.overwrite else unused_path(path)
 
 
 def _free_session(run_dir: Path, session: str) -> str:
@@ -175,11 +211,36 @@ def _free_session(run_dir: Path, session: str) -> str:
     return f"{session}-{n}"
 
 
-def _joint_limits():
+def check_robot(robot: str | None) -> str | None:
+    """The robot profile the services get, checked now (a bad one is one line here, not four crashed
+    services): None = their default; a file becomes an absolute path (the services run from the repo).
+
+    Raises:
+        ValueError (ProfileError): unknown or malformed profile, with the reason.
+    """
+    if robot is None:
+        return None
+    from shared.robot.profile import load_profile
+    from shared.robot.wheeled import is_wheeled_profile, load_wheeled_profile
+
+    if Path(robot).is_file():
+        robot = str(Path(robot).resolve())
     try:
+        (load_wheeled_profile if is_wheeled_profile(robot) else load_profile)(robot)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"robot profile {robot}: not valid TOML: {exc}") from None
+    return robot
+
+
+def _joint_limits(robot: str | None = None):
+    try:
+        from shared.robot.wheeled import build_wheeled_robot, is_wheeled_profile, planner_limits
+
+        if robot and is_wheeled_profile(robot):
+            return planner_limits(build_wheeled_robot(robot))  # what its commands and states carry
         from shared.robot.pinocchio_model import build_robot_model
 
-        rm = build_robot_model()
+        rm = build_robot_model(robot) if robot else build_robot_model()
         margin = rm.profile.limit_margin  # the URDF limits, not the solver's shrunk ones
         return rm.lower - margin, rm.upper + margin
     except Exception as exc:  # the summary still works without limit checks
@@ -192,11 +253,13 @@ LEGEND = (
     "",
     "in/out: messages received/published by each service. dropped: skipped by design, not lost: each stage",
     "  keeps only the newest input (the sim applies the latest of the solver's 500 Hz commands, the solver",
-    "  solves on the newest targets, retarget's queue holds 32 frames in a burst). rejected: bad or",
+    "  solves on the newest targets, retarget skips frames that went stale behind newer ones). rejected: bad or",
     "  out-of-order input (uncalibrated, another source, ...): worth a look, see last_error in the JSON.",
     "latency: a frame entering the bus -> the first simulated state that applied it (under CPU load it grows).",
-    "error: simulated robot vs its targets, last state of each frame. max includes the start of each clip",
-    "  (the robot moving from its pose onto the operator's); p95 is the figure for the motion itself.",
+    "error: simulated robot vs its targets, last state of each frame. start-up: the first "
+    f"{STARTUP_S:g} s of each stream",
+    "  (a clip, a restarted source, a source back after a silence), while the robot moves from where it",
+    "  stood onto the operator's pose; steady: the tracking itself (JSON: error_split says the rule).",
 )
 
 
@@ -224,9 +287,12 @@ def _print_summary(s: dict, path: Path) -> None:
         f" ({lat.get('samples')} frames)"
     )
     we, ee = s.get("wrist_err_cm", {}), s.get("elbow_err_cm", {})
+    startup_s = s.get("error_split", {}).get("startup_s")
     for name, e in (("wrist", we), ("elbow", ee)):
+        st, up = e.get("steady", {}), e.get("startup", {})
         lines.append(
-            f"{name} error: mean {f(e.get('mean'), ' cm')}, p95 {f(e.get('p95'), ' cm')}, max {f(e.get('max'), ' cm')}"
+            f"{name} error, steady: mean {f(st.get('mean'), ' cm')}, p95 {f(st.get('p95'), ' cm')},"
+            f" max {f(st.get('max'), ' cm')}   start-up (first {startup_s} s): max {f(up.get('max'), ' cm')}"
         )
     lines.append(
         f"joint limit excess (URDF): commanded {s.get('max_command_limit_excess_rad', 0.0):.2e} rad,"

@@ -134,12 +134,14 @@ class LocalStack:
         argv: list[str] | None = None,
         env: dict | None = None,
         service: bool = True,
+        restart: bool | None = None,
     ) -> float:
         """Start a service; again with no arguments: the same command. Returns the monotonic start time [s].
 
         ``name`` is a compose service unless ``argv`` (a full command line; ``mimic ...`` allowed)
         is given; such commands get :meth:`client_env` unless ``env`` is given. ``service=False``:
         a one-shot job (a clip player), whose exit 0 is logged as its success, not as news.
+        ``restart``: restart it when it crashes (default: compose services, if the stack restarts).
         """
         if argv is None:
             if name in self.argv and extra is None:
@@ -150,7 +152,8 @@ class LocalStack:
         env = env if env is not None else self.client_env()
         self.argv[name], self.env[name] = argv, env
         t = time.monotonic()
-        self.sup.start(name, argv, env, restart=self.restart and name in self.spec, service=service)
+        restart = self.restart and name in self.spec if restart is None else restart
+        self.sup.start(name, argv, env, restart=restart, service=service)
         return t
 
     def start_router(self, timeout: float = ROUTER_TIMEOUT_S) -> None:

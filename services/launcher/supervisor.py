@@ -161,7 +161,8 @@ class Supervisor:
                     child.name,
                     ""
                     if child.name != "solver"
-                    else " (the sim holds its last pose until a followed solver publishes again: mimic follow ID)",
+                    else " (the sim holds its last pose until a followed solver publishes again: mimic follow ID;"
+                    " mimic swap-solver --algo ALGO replaces a solver without a gap)",
                 )
             else:
                 log.warning(

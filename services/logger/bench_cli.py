@@ -11,22 +11,49 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from services.logger.config import LoggerConfig
+from shared.config import add_dataclass_arguments, config_from_args
+
+log = logging.getLogger("mimic.bench")
+
+
+@dataclass(frozen=True)
+class BenchTraffic:
+    """The synthetic bus traffic the bench runs through the logger.
+
+    Attributes:
+        frames: mocap frames.
+        source_rate: mocap rate [Hz] (stamps).
+        solvers: solvers publishing commands.
+        states_per_frame: RobotStates per frame (200 Hz sim: 2).
+    """
+
+    frames: int = 300
+    source_rate: float = 100.0
+    solvers: int = 1
+    states_per_frame: int = 2
+
+    def __post_init__(self) -> None:
+        if self.frames < 1 or self.solvers < 0 or self.states_per_frame < 0 or not self.source_rate > 0:
+            raise ValueError("frames must be >= 1, solvers and states_per_frame >= 0, source_rate > 0 Hz")
+
+
+#: The LoggerConfig fields the bench varies (the shipped defaults otherwise).
+LOGGER_FIELDS = ("meshes", "robot_rate", "skeleton_rate")
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frames", type=int, default=300, help="mocap frames")
-    p.add_argument("--source-rate", type=float, default=100.0, help="mocap rate [Hz] (stamps)")
-    p.add_argument("--solvers", type=int, default=1, help="solvers publishing commands")
-    p.add_argument("--states-per-frame", type=int, default=2, help="RobotStates per frame (200 Hz sim: 2)")
-    p.add_argument("--robot-rate", type=float, default=30.0, help="robot mesh placements per second [Hz]")
-    p.add_argument("--skeleton-rate", type=float, default=60.0, help="skeletons per second [Hz]")
-    p.add_argument("--no-meshes", action="store_true", help="without robot meshes")
+    add_dataclass_arguments(p, BenchTraffic)
+    add_dataclass_arguments(p, LoggerConfig, only=LOGGER_FIELDS)
 
 
 def synthetic_stream(frames: int, source_rate: float, solvers: int, states_per_frame: int) -> list[bytes]:
@@ -77,13 +104,19 @@ def main(args: argparse.Namespace) -> int:
     from services.logger.robot_visual import RobotVisual
     from shared.messages import peek_type
 
-    payloads = synthetic_stream(args.frames, args.source_rate, args.solvers, args.states_per_frame)
+    try:
+        traffic = config_from_args(BenchTraffic, args)
+        lc = config_from_args(LoggerConfig, args)
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 2
+    payloads = synthetic_stream(traffic.frames, traffic.source_rate, traffic.solvers, traffic.states_per_frame)
     with tempfile.TemporaryDirectory() as tmp:
         rrd = Path(tmp) / "bench.rrd"
         rec = rr.RecordingStream("mimic_bench")
         rec.save(str(rrd))
-        visual = None if args.no_meshes else RobotVisual()
-        lg = RerunLogger(rec, visual, robot_rate=args.robot_rate, skeleton_rate=args.skeleton_rate)
+        visual = RobotVisual() if lc.meshes else None
+        lg = RerunLogger(rec, visual, robot_rate=lc.robot_rate, skeleton_rate=lc.skeleton_rate)
         lg.setup()
         times: dict[str, list[float]] = {}
         t_all = time.perf_counter()
@@ -96,7 +129,7 @@ def main(args: argparse.Namespace) -> int:
         rec.flush()
         rec.disconnect()
         size = rrd.stat().st_size
-    source_s = args.frames / args.source_rate
+    source_s = traffic.frames / traffic.source_rate
     out = {
         "messages": len(payloads),
         "bus_rate_hz": round(len(payloads) / source_s, 1),
@@ -109,8 +142,8 @@ def main(args: argparse.Namespace) -> int:
         "counts": lg.counts,
         "rrd_bytes": size,
         "meshes": visual is not None,
-        "robot_rate_hz": args.robot_rate,
-        "skeleton_rate_hz": args.skeleton_rate,
+        "robot_rate_hz": lc.robot_rate,
+        "skeleton_rate_hz": lc.skeleton_rate,
     }
     json.dump(out, sys.stdout, indent=2)
     sys.stdout.write("\n")

@@ -18,7 +18,12 @@ frame, x forward, y left, z up):
   state on a frame vs the targets of the same frame (``hdr.t0``) [cm];
   ``metrics/residual/<solver>/level<k>``, ``metrics/solve_ms/<solver>``,
   ``metrics/latency_ms/<stream>`` (receive time - ``hdr.t0``),
-  ``metrics/drops/<service>`` (from ServiceStatus), ``metrics/logger/skipped``.
+  from each service's ServiceStatus, as rates [1/s] between two statuses (cumulative counts
+  only ever climb, and a newcomer reads "1 397 dropped" as a fault):
+  ``metrics/lost_or_rejected/<service>/{lost,rejected}`` (samples lost on the bus, i.e. gaps,
+  and bad or out-of-order inputs: worth a look whenever above 0) apart from
+  ``metrics/skipped_by_design/<service>`` (newest-wins mailboxes skipping superseded samples:
+  normal); ``metrics/logger/skipped``.
 
 Rerun is imported only inside :mod:`services.logger` (this module, ``cli``, ``bench_cli`` and
 ``rrd_summary``); no other service depends on it.
@@ -80,8 +85,12 @@ def blueprint(operator_offset: Iterable[float] = (0.0, 1.0, 0.0)) -> rrb.Bluepri
                 rrb.TimeSeriesView(origin="metrics/latency_ms", name="end-to-end latency [ms]"),
                 rrb.TimeSeriesView(origin="metrics/solve_ms", name="solve time [ms]"),
                 rrb.TimeSeriesView(origin="metrics/residual", name="residual per level"),
-                rrb.TimeSeriesView(origin="metrics/drops", name="drops"),
-                rrb.TimeSeriesView(origin="metrics/rejected", name="rejected inputs"),
+                rrb.TimeSeriesView(
+                    origin="metrics/lost_or_rejected", name="lost on the bus + rejected [1/s]: should stay at 0"
+                ),
+                rrb.TimeSeriesView(
+                    origin="metrics/skipped_by_design", name="skipped by design [1/s]: newest wins, normal"
+                ),
                 rrb.TextLogView(origin="status", name="service problems"),
             ),
             column_shares=[3, 2],
@@ -133,6 +142,8 @@ class RerunLogger:
         self._time = (0, 0.0)
         self._t0_first: int | None = None  # t0 [ns] of the first message with a header
         self._session_s = 0.0  # "session" timeline: seconds of bus time since that message
+        #: service -> (uptime [s], dropped, gaps, rejected) of its previous status (for the rates)
+        self._prev_counts: dict[str, tuple[float, int, int, int]] = {}
         self._said: dict[str, tuple[str, str]] = {}  # service -> (state, last_error) last put in the text log
         self._setup_done = False
 
@@ -158,7 +169,13 @@ class RerunLogger:
                 for mesh, (p, R) in zip(self.visual.meshes, poses):
                     path = f"world/robot/{robot}/{mesh.name}"
                     rgba = tint or mesh.rgba
-                    rec.log(path, rr.Asset3D(path=mesh.path, albedo_factor=rgba), static=True)
+                    # A mesh file (URDF robots), or a primitive that draws itself (services/logger/wheeled_visual.py).
+                    shape = (
+                        mesh.archetype(rgba)
+                        if hasattr(mesh, "archetype")
+                        else rr.Asset3D(path=mesh.path, albedo_factor=rgba)
+                    )
+                    rec.log(path, shape, static=True)
                     if not mesh.moving:
                         rec.log(path, rr.Transform3D(translation=p, mat3x3=R), static=True)
         self._setup_done = True
@@ -385,8 +402,17 @@ class RerunLogger:
     def _status(self, msg: ServiceStatus) -> None:
         self._set_time(*self._time)
         name = msg.service if msg.instance == "main" else f"{msg.service}_{msg.instance}"
-        self.rec.log(f"metrics/drops/{name}", rr.Scalars([float(msg.counts.get("dropped", 0))]))
-        self.rec.log(f"metrics/rejected/{name}", rr.Scalars([float(msg.counts.get("rejected", 0))]))
+        c = msg.counts
+        now = (msg.uptime, c.get("dropped", 0), c.get("gaps", 0), c.get("rejected", 0))
+        prev, self._prev_counts[name] = self._prev_counts.get(name), now
+        # Rates over the last status period; none on a service's first status or after it restarted
+        # (uptime or a count went back).
+        if prev is not None and now[0] > prev[0] and all(a >= b for a, b in zip(now[1:], prev[1:])):
+            dt = now[0] - prev[0]
+            dropped, lost, rejected = ((a - b) / dt for a, b in zip(now[1:], prev[1:]))
+            self.rec.log(f"metrics/skipped_by_design/{name}", rr.Scalars([dropped]))
+            self.rec.log(f"metrics/lost_or_rejected/{name}/lost", rr.Scalars([lost]))
+            self.rec.log(f"metrics/lost_or_rejected/{name}/rejected", rr.Scalars([rejected]))
         # A service that is not "ok" (e.g. retarget throwing frames away while uncalibrated) says
         # why in the viewer's log panel, once per change, not only in its process log.
         said = (msg.state, msg.last_error)

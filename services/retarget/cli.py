@@ -113,10 +113,17 @@ def main(args: argparse.Namespace) -> int:
     from services.retarget.calibration import CalibrationError
     from services.retarget.node import run
     from services.retarget.retargeter import Retargeter
+    from shared.robot.wheeled import is_wheeled_profile
 
     try:
         config = config_from_args(args)
-        retargeter = Retargeter(config, initial_calibration(args))
+        if is_wheeled_profile(config.robot):
+            # A mobile robot: its profile's [retarget] table says what drives what (services/retarget/mobile.py).
+            from services.retarget.mobile import MobileRetargeter
+
+            retargeter = MobileRetargeter(config, initial_calibration(args))
+        else:
+            retargeter = Retargeter(config, initial_calibration(args))
     except (CalibrationError, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2

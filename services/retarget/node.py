@@ -3,7 +3,7 @@
 Subscribes HumanFrames on ``keys.mocap_frame`` (decoding and retargeting one frame costs
 ~0.7 ms; a queue absorbs stalls, and frames gone stale behind newer ones are skipped and counted),
 publishes TaskTargets on ``keys.targets``, and
-serves two queryables:
+serves three queryables:
 
 * ``keys.calibration``: GET without payload returns the current calibration (msgpack
   map, see :meth:`Calibration.to_dict`; ``{"calibrated": false}`` before any). A
@@ -11,6 +11,9 @@ serves two queryables:
   payload ``{"action": "recalibrate"}`` re-runs the anthropometric calibration on the
   next usable frame (operator at rest).
 * ``keys.config("retarget")``: GET returns the configuration and workspace box.
+* ``keys.retarget_source``: GET returns ``{"follow", "chosen", "sources"}`` (the source
+  followed now, the one chosen explicitly or null, frames received per source); a payload (a
+  source name, or ``{"source": NAME}``; empty name: none chosen) chooses the source to follow.
 """
 
 from __future__ import annotations
@@ -77,6 +80,7 @@ class RetargetNode:
         self._worker.start()
         svc.queryable(svc.keys.calibration, self.on_calibration)
         svc.queryable(svc.keys.config("retarget"), self.on_config)
+        svc.queryable(svc.keys.retarget_source, self.on_source)
 
     def _spin(self) -> None:
         while not self.svc.stop_event.is_set():
@@ -144,6 +148,24 @@ class RetargetNode:
         if cal is None:
             return msgpack.packb({"calibrated": False})
         return msgpack.packb({"calibrated": True, **cal.to_dict()})
+
+    def on_source(self, payload: bytes | None) -> bytes:
+        """Queryable handler: GET the followed source, a payload chooses it (see module doc)."""
+        if payload:
+            d = parse_query(payload)
+            name = d.get("source") if isinstance(d, dict) else d
+            if not isinstance(name, str):
+                raise ValueError(f"source payload: expected a name or {{'source': NAME}}, got {d!r}")
+            with self._lock:
+                self.retargeter.follow_source(name)
+            self.svc.log.info(
+                "source chosen by query: %s", repr(name) if name else "none (the first one seen is followed)"
+            )
+        with self._lock:
+            r = self.retargeter
+            return msgpack.packb(
+                {"follow": r.followed_source, "chosen": r.config.source or None, "sources": dict(r.sources_seen)}
+            )
 
     def on_config(self, payload: bytes | None) -> bytes:
         """Queryable handler: the configuration and workspace box (read-only)."""

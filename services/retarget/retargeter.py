@@ -31,11 +31,11 @@ import numpy as np
 from services.retarget.calibration import (
     DEFAULT_ARM_LENGTH,
     Calibration,
-    CalibrationError,
     anthropometric,
     from_wrists,
 )
 from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.intake import FrameIntake
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from services.retarget.orientation import (
     ForearmOrientationMap,
@@ -59,11 +59,14 @@ from shared.wrist_only import is_wrist_only
 
 log = logging.getLogger(__name__)
 
+#: Source names whose frames are counted in ``sources_seen`` (a bound against a flood of names).
+MAX_SOURCES = 32
 #: What a source must send before it is retargeted (said with every ``uncalibrated`` reject).
 CALIBRATION_HINT = (
     "auto-calibration takes the first frame with shoulder, elbow and wrist of both arms, arms hanging at rest "
     "(one arm alone is accepted after 30 frames and mirrored); otherwise install one with "
-    "`mimic calibrate --file FILE` or start retarget with --calibration FILE"
+    "`mimic calibrate --file FILE` or start retarget with --calibration FILE; a wrist-only source (wrists, no "
+    "shoulders or elbows) calibrates from its first rest frame with an assumed arm length (retarget --arm-length)"
 )
 
 
@@ -161,7 +164,7 @@ class RetargetConfig:
         return d
 
 
-class Retargeter:
+class Retargeter(FrameIntake):
     """HumanFrames in the operator pelvis frame -> wrist/elbow TaskTargets in the robot base frame.
 
     Args:
@@ -223,6 +226,8 @@ class Retargeter:
         self._recalibrate = calibration is None and self.config.auto_calibrate
         self._calib_tries = 0
         self._ignored: set[str] = set()  # sources named once as ignored
+        #: frames received per source (the first MAX_SOURCES names), for "which sources are there?"
+        self.sources_seen: Counter[str] = Counter()
         self._source: str | None = None  # the followed source (kept across stream resets)
         self._source_t0 = 0  # t0 [ns] of the followed source's last frame
         self._reset_stream()
@@ -274,10 +279,29 @@ class Retargeter:
         self._reset_stream()
         log.info("calibration installed (%s), mode %s", calibration.source, self.config.mode)
 
-    def request_recalibration(self) -> None:
-        """Calibrate anthropometrically again from the next frame with valid arm bones."""
-        self._recalibrate = True
-        self._calib_tries = 0
+    @property
+    def followed_source(self) -> str | None:
+        """The source whose frames are retargeted: the chosen one, else the one followed now (None: none yet)."""
+        return self.config.source or self._source
+
+    def follow_source(self, name: str) -> None:
+        """Follow source ``name`` from now on, explicitly ("": back to the first one seen).
+
+        Frames of every other source are then rejected as ``other_source``, each named once in
+        the log again (the choice changed what is ignored).
+        """
+        self.config.source = name
+        self._ignored.clear()
+        if name:
+            log.info("following source %r, chosen explicitly: frames of any other are rejected (other_source)", name)
+        else:
+            log.info("no source chosen: following the first one seen until it is silent")
+
+    def _calibration_from(self, frame: HumanFrame) -> Calibration:
+        """The operator's calibration from one rest frame: from the wrists alone for a wrist-only source."""
+        if is_wrist_only(frame):
+            return from_wrists(frame, self.bone_of, self.config.arm_length)
+        return anthropometric(frame, self.bone_of)
 
     def rest_targets(self) -> dict[str, np.ndarray]:
         """Robot target for the operator at rest, target -> (3,) [m] (``U_ps`` of eq. 1; the current
@@ -288,10 +312,6 @@ class Retargeter:
         return out | {t: p.copy() for t, p in self._rest_reach.items()}
 
     # ------------------------------------------------------------------ step
-
-    def _reject(self, reason: str, detail: str) -> None:
-        self.rejects[reason] += 1
-        self.last_reject = (reason, detail)
 
     def _follows(self, frame: HumanFrame) -> bool:
         """Whether ``frame`` comes from the source this retargeter follows (see ``RetargetConfig.source``).
@@ -338,6 +358,8 @@ class Retargeter:
         """
         self.last_reject = None
         hdr = frame.hdr
+        if frame.source in self.sources_seen or len(self.sources_seen) < MAX_SOURCES:
+            self.sources_seen[frame.source] += 1
         if not self._follows(frame):
             return None
         if self._source is not None and frame.source != self._source:
@@ -352,25 +374,11 @@ class Retargeter:
         last_stamp = self._guard.last_stamp(frame.source)
         dt = None if last_stamp is None else hdr.stamp - last_stamp
         self._guard.accept(hdr, frame.source)
-        if self._recalibrate:
-            try:
-                if is_wrist_only(frame):
-                    cal = from_wrists(frame, self.bone_of, self.config.arm_length)
-                else:
-                    cal = anthropometric(frame, self.bone_of)
-                self._calib_tries += 1
-                if "mirrored" in cal.source and self._calib_tries <= self.config.one_arm_after:
-                    raise CalibrationError(f"one arm only ({cal.source}); waiting for both arms")
-                self.set_calibration(cal)
-                self._guard.accept(hdr, frame.source)
-                dt = None
-            except CalibrationError as exc:
-                if self.calibration is None:
-                    self._reject("uncalibrated", f"{exc}; {CALIBRATION_HINT}")
-                    return None
-        if self.calibration is None:
-            self._reject("uncalibrated", f"no calibration and auto-calibration is off; {CALIBRATION_HINT}")
+        calibrated = self._calibrated(frame, hdr, self._calibration_from, CALIBRATION_HINT)
+        if calibrated == "rejected":
             return None
+        if calibrated == "new":
+            dt = None
         if not self._rot_map:
             self._posture_maps(frame)
         self.counts["frames"] += 1

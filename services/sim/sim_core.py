@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -110,7 +111,56 @@ class CommandError(ValueError):
         self.detail = detail
 
 
-class SimCore:
+class FollowerCore:
+    """What every sim core shares with the sim service: hold state, counters, clock.
+
+    A subclass builds ``self.robot`` (``.model``, ``.data``: MuJoCo), calls
+    :meth:`_start_following` and implements ``check``, ``step_physics``, ``state`` and ``info``.
+    """
+
+    robot: Any
+    counters: SimCounters
+
+    def _start_following(self, solver_id: str) -> None:
+        """Hold the start pose until the first command; nothing applied or rejected yet."""
+        self._last_cmd_time: float | None = None
+        self.holding = True  # holding the start pose until the first command
+        self.hdr = Header(0, 0.0, 0)
+        self.solver_id = solver_id
+        self.counters = SimCounters()
+        self._ncon_max = 0
+
+    def _reject(self, exc: CommandError) -> bool:
+        """Count a refused command by reason; always False (for :meth:`apply`)."""
+        c = self.counters
+        c.rejects[exc.reason] = c.rejects.get(exc.reason, 0) + 1
+        c.last_reject = str(exc)
+        return False
+
+    def _accepted(self, cmd: JointCommand, now: float) -> None:
+        """Bookkeeping of a command applied at ``now`` [s]: holding ends, its header is reported."""
+        self._last_cmd_time = now
+        self.holding = False
+        self.hdr = cmd.hdr
+        self.counters.applied += 1
+
+    @property
+    def dt(self) -> float:
+        """Physics step [s]."""
+        return float(self.robot.model.opt.timestep)
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]."""
+        return float(self.robot.data.time)
+
+    @property
+    def max_contacts(self) -> int:
+        """Largest number of simultaneous contacts seen so far."""
+        return self._ncon_max
+
+
+class SimCore(FollowerCore):
     """MuJoCo robot following JointCommands.
 
     Args:
@@ -160,12 +210,7 @@ class SimCore:
         self._ref_qd = np.zeros_like(q0)  # last commanded qd (n,) [rad/s]
         self._ref_t = 0.0  # sim time the last command was applied [s]
         self._hold_q = q0.copy()
-        self._last_cmd_time: float | None = None
-        self.holding = True  # holding the rest pose until the first command
-        self.hdr = Header(0, 0.0, 0)
-        self.solver_id = cfg.solver_id
-        self.counters = SimCounters()
-        self._ncon_max = 0
+        self._start_following(cfg.solver_id)
 
     def resume(self, q: np.ndarray) -> None:
         """Start from joint positions ``q`` (n,) [rad] (clipped into the limits), holding them, at rest.
@@ -184,24 +229,9 @@ class SimCore:
     # ------------------------------------------------------------------ properties
 
     @property
-    def dt(self) -> float:
-        """Physics step [s]."""
-        return float(self.robot.model.opt.timestep)
-
-    @property
-    def time(self) -> float:
-        """Simulated time [s]."""
-        return float(self.robot.data.time)
-
-    @property
     def q(self) -> np.ndarray:
         """(n,) controlled joint positions [rad]."""
         return self.robot.data.qpos[self.robot.qpos_idx].copy()
-
-    @property
-    def max_contacts(self) -> int:
-        """Largest number of simultaneous contacts seen so far."""
-        return self._ncon_max
 
     # ------------------------------------------------------------------ commands
 
@@ -253,10 +283,7 @@ class SimCore:
         try:
             idx, q, qd = self.check(cmd)
         except CommandError as exc:
-            c = self.counters
-            c.rejects[exc.reason] = c.rejects.get(exc.reason, 0) + 1
-            c.last_reject = str(exc)
-            return False
+            return self._reject(exc)
         now = self.time if now is None else float(now)
         qc = np.clip(q, self.lower[idx], self.upper[idx])  # last safety net: never past the soft limits
         if np.any(qc != q):
@@ -265,13 +292,10 @@ class SimCore:
         self._ref_qd[:] = 0.0
         self._ref_qd[idx] = np.clip(qd, -self.vmax[idx], self.vmax[idx])
         self._ref_t = now
-        self._last_cmd_time = now
         if self.holding:
             # Info: a hold and its end are events an operator wants in the log (a few per run).
             log.info("commands resumed at t=%.3f s (seq %d)", now, cmd.hdr.seq)
-        self.holding = False
-        self.hdr = cmd.hdr
-        self.counters.applied += 1
+        self._accepted(cmd, now)
         return True
 
     # ------------------------------------------------------------------ physics

@@ -56,6 +56,16 @@ class WbqpConfig:
             "torso as an extension of the arm") and a heavy z/α weight keeps height and heading.
         eps: eq. 13 bound ε on the torso's acceleration change per tick [m/s^2, rad/s^2] (4,).
         limit_margin: position limits shrunk by this [m or rad] on each side.
+        base_acc_max: bound on the torso's horizontal accelerations |ẍ|, |ÿ| [m/s^2] (not in seed 002,
+            which assumes the TITA balances whatever it is asked): a wheeled pendulum accelerating at
+            a leans by about a/g, and the balance loop (services/wbc/balance.py) fell on mocap-driven
+            plans reaching 3 m/s^2. The seed's own experiment peaks at 0.5 m/s^2.
+        brake: (7,) deceleration [m/s^2, rad/s^2] a bounded coordinate may need to stop at its limit
+            (0 = none; not in seed 002). Eq. 11 alone lets a coordinate run at full speed into its
+            limit and stop there in one tick (at Δt = 2 ms, 0.1 m/s becomes 50 m/s^2), which eq. 13
+            forbids for the torso and the hand equality passes on to the arm: on mocap targets the
+            torso height hit its limit and the arm whipped at 100 rad/s. So the velocity towards
+            a limit is also bounded: ``q̇' <= sqrt(2 brake (q_hi - q))`` (and the mirror).
         qp: QP backend (``daqp`` default: on this 7-variable QP it costs about 0.8x PIQP's CPU time; ``piqp``).
         eq_tol: relative residual of eq. 8 (times 1 + ||b||) above which the hard-equality solve counts as failed.
     """
@@ -67,6 +77,8 @@ class WbqpConfig:
     r_weight: tuple[float, ...] = (1.0, 1.0, 20.0, 5.0, 3.0, 3.0, 3.0)
     eps: tuple[float, float, float, float] = (0.02, 0.02, 0.02, 0.02)
     limit_margin: float = 0.02
+    brake: tuple[float, ...] = (0.0, 0.0, 1.0, 0.0, 20.0, 20.0, 20.0)
+    base_acc_max: float = 0.5
     qp: str = "daqp"
     eq_tol: float = 1e-5
 
@@ -77,6 +89,10 @@ class WbqpConfig:
             raise ValueError(f"r_weight needs {NQ} values > 0, got {self.r_weight}")
         if len(self.q_weight) != 3 or min(self.q_weight) <= 0:
             raise ValueError(f"q_weight needs 3 values > 0, got {self.q_weight}")
+        if not self.base_acc_max > 0:
+            raise ValueError(f"base_acc_max must be > 0, got {self.base_acc_max}")
+        if len(self.brake) != NQ or min(self.brake) < 0:
+            raise ValueError(f"brake needs {NQ} values >= 0, got {self.brake}")
         if len(self.eps) != 4 or min(self.eps) <= 0:
             raise ValueError(f"eps needs 4 values > 0, got {self.eps}")
 
@@ -133,6 +149,7 @@ class WbqpAccel:
         self.upper = np.where(np.isfinite(hi), hi, UNBOUNDED)
         self.backend = backend or make_backend(cfg.qp)
         self.Q = np.diag(cfg.q_weight)
+        self._brake = np.asarray(cfg.brake, dtype=float) * (np.abs(self.upper - self.lower) < UNBOUNDED)
         self.R = np.diag(cfg.r_weight)
         self.eps = np.asarray(cfg.eps, dtype=float)
         self.qdd_prev = np.zeros(NQ)
@@ -152,10 +169,23 @@ class WbqpAccel:
         return a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - v), p, v
 
     def box(self, q: np.ndarray, qd: np.ndarray, with_eq13: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds (lo, hi) (7,) on q̈ from eq. 11 (prediction in the limits) and eq. 13 (torso rows)."""
+        """Bounds (lo, hi) (7,) on q̈ from eq. 11 (prediction in the limits), eq. 13 (torso rows) and the
+        two additions of :class:`WbqpConfig` (``brake``, ``base_acc_max``).
+
+        The damper counts as part of the position limits: where it and eq. 13 disagree, it wins
+        (eq. 13 would let the coordinate reach its limit too fast to stop there but in one tick).
+        """
         dt = self.config.dt
         lo = (self.lower - q - qd * dt) / (dt * dt)
         hi = (self.upper - q - qd * dt) / (dt * dt)
+        # Velocity damper (WbqpConfig.brake): room to stop with the given deceleration.
+        br = self._brake
+        v_hi = np.sqrt(2.0 * br * np.maximum(self.upper - q, 0.0))
+        v_lo = -np.sqrt(2.0 * br * np.maximum(q - self.lower, 0.0))
+        hi = np.where(br > 0, np.minimum(hi, (v_hi - qd) / dt), hi)
+        lo = np.where(br > 0, np.maximum(lo, (v_lo - qd) / dt), lo)
+        lo[:2] = np.maximum(lo[:2], -self.config.base_acc_max)
+        hi[:2] = np.minimum(hi[:2], self.config.base_acc_max)
         # Joints already past a limit (measured state): the bounds cross; brake back towards the box.
         crossed = lo > hi
         if crossed.any():

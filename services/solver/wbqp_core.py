@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from services.solver.reference_filter import ReferenceFilter
 from services.solver.targets import TargetTracker
 from services.solver.wbqp_accel import Q_NAMES, WbqpAccel, WbqpConfig, predict
 from shared.messages import Header, JointCommand, TaskTargets
@@ -28,13 +29,20 @@ from shared.robot.wheeled import WheeledRobot, planner_limits
 
 @dataclass
 class WbqpCoreConfig:
-    """Settings: ``solver_id``; ``target`` driving the hand; target ``horizon``/``timeout`` [s]; the planner's."""
+    """Settings: ``solver_id``; ``target`` driving the hand; target ``horizon``/``timeout`` [s]; the planner's.
+
+    ``ref_omega`` [rad/s] and ``ref_acc_max`` [m/s^2]: the reference filter between the targets and
+    the planner (:mod:`services.solver.reference_filter`; ``ref_omega = 0`` turns it off: the
+    planner then gets the sampled targets as they are, which excite a torso/arm oscillation).
+    """
 
     solver_id: str = "main"
     target: str = "right_wrist"
     horizon: float = 0.05
     timeout: float = 0.5
     planner: WbqpConfig = field(default_factory=WbqpConfig)
+    ref_omega: float = 6.0
+    ref_acc_max: float = 2.0
 
 
 class WbqpCore:
@@ -54,6 +62,7 @@ class WbqpCore:
         self.q = np.r_[robot.profile.start_base, robot.profile.start_arm].astype(float)
         self.qd = np.zeros(len(Q_NAMES))
         self.dt = cfg.planner.dt
+        self.ref = ReferenceFilter(cfg.ref_omega, cfg.ref_acc_max) if cfg.ref_omega > 0 else None
 
     def step(self, targets: TaskTargets | None, t: float) -> JointCommand:
         """One tick at solver time t [s] with the newest targets since the last tick (or None)."""
@@ -67,7 +76,13 @@ class WbqpCore:
             return self._command("init", [], 0, f"waiting for a valid {cfg.target} target", t0, t)
         stale = self.tracker.stale(t)
         v_d = np.zeros(3) if (stale or s.held) else s.v
-        res = self.planner.solve(self.q, self.qd, s.p, v_d)
+        if self.ref is None:
+            res = self.planner.solve(self.q, self.qd, s.p, v_d)
+        else:
+            if self.ref.p is None:  # start from where the hand is, not with a jump to the first target
+                self.ref.reset(self.planner.kin.evaluate(self.q, self.qd)[0])
+            p_r, v_r, a_r = self.ref.step(s.p, v_d, self.dt)
+            res = self.planner.solve(self.q, self.qd, p_r, v_r, a_r)
         self.q, self.qd = predict(self.q, self.qd, res.qdd, self.dt)
         status, reason = res.status, res.reason
         if status == "ok" and (stale or s.held):

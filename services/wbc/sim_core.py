@@ -20,11 +20,11 @@ from types import SimpleNamespace
 import mujoco
 import numpy as np
 
-from services.sim.sim_core import CommandError, SimCounters
+from services.sim.sim_core import CommandError, FollowerCore
 from services.solver.wbqp_accel import Q_NAMES
 from services.wbc.balance import BalanceController, Reference
 from services.wbc.runner import measured_q, place_robot
-from shared.messages import Header, JointCommand, Pose, RobotState
+from shared.messages import JointCommand, Pose, RobotState
 from shared.robot.wheeled import build_wheeled_robot, planner_limits
 from shared.rotations import matrix_to_quat
 
@@ -46,7 +46,7 @@ class WheeledSimConfig:
     solver_id: str = "main"
 
 
-class WheeledSimCore:
+class WheeledSimCore(FollowerCore):
     """MuJoCo TITA-PiPER with its balance controller (see the module docstring).
 
     Args:
@@ -71,25 +71,8 @@ class WheeledSimCore:
         self._ref_qdd = np.zeros(7)
         self._ref_t = 0.0
         self._last_cmd: tuple[float, np.ndarray] | None = None
-        self._last_cmd_time: float | None = None
-        self.holding = True
-        self.hdr = Header(0, 0.0, 0)
-        self.solver_id = cfg.solver_id
-        self.counters = SimCounters()
-        self._ncon_max = 0
+        self._start_following(cfg.solver_id)
         self._hand = m.site(prof.hand_site).id
-
-    @property
-    def dt(self) -> float:
-        return float(self.robot.model.opt.timestep)
-
-    @property
-    def time(self) -> float:
-        return float(self.robot.data.time)
-
-    @property
-    def max_contacts(self) -> int:
-        return self._ncon_max
 
     def check(self, cmd: JointCommand) -> tuple[np.ndarray, np.ndarray]:
         """(q (7,), qd (7,)) of a valid command in Q_NAMES order; raises CommandError otherwise."""
@@ -117,10 +100,7 @@ class WheeledSimCore:
         try:
             q, qd = self.check(cmd)
         except CommandError as exc:
-            c = self.counters
-            c.rejects[exc.reason] = c.rejects.get(exc.reason, 0) + 1
-            c.last_reject = str(exc)
-            return False
+            return self._reject(exc)
         now = self.time if now is None else float(now)
         if self._last_cmd is not None and cmd.t_cmd > self._last_cmd[0]:
             # The command carries no acceleration: a low-passed difference of the commanded
@@ -131,10 +111,7 @@ class WheeledSimCore:
             self._ref_qdd = (1.0 - a) * self._ref_qdd + a * acc
         self._last_cmd = (cmd.t_cmd, qd.copy())
         self._ref_q, self._ref_qd, self._ref_t = q, qd, now
-        self._last_cmd_time = now
-        self.holding = False
-        self.hdr = cmd.hdr
-        self.counters.applied += 1
+        self._accepted(cmd, now)
         return True
 
     def _reference(self) -> Reference:

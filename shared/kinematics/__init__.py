@@ -1,7 +1,8 @@
-"""Kinematics core (mink/pink style): configuration, tasks, limits.
+"""Kinematics core (mink/pink style): configuration and tasks.
 
-Import tree: exceptions -> configuration -> tasks / limits. The solvers live in
-``services/solver`` and take prioritised levels of these tasks.
+Import tree: exceptions -> configuration -> tasks. The solvers live in
+``services/solver`` and take prioritised levels of these tasks; the joint limits of a
+solver step are ``services/solver/bounds.py``.
 """
 
 from shared.kinematics.alignment_task import AlignmentTask, JointVelocityTask, delta_jacobian, orientation_delta
@@ -13,7 +14,6 @@ from shared.kinematics.exceptions import (
     KinematicsError,
 )
 from shared.kinematics.frame_task import FrameTask
-from shared.kinematics.limits import ConfigurationLimit, Limit, VelocityLimit, velocity_bounds
 from shared.kinematics.position_task import PositionTask
 from shared.kinematics.posture_task import PostureTask
 from shared.kinematics.task import Task
@@ -21,19 +21,15 @@ from shared.kinematics.task import Task
 __all__ = [
     "AlignmentTask",
     "Configuration",
-    "ConfigurationLimit",
     "FrameTask",
     "InvalidConfigurationError",
     "InvalidFrameError",
     "InvalidTargetError",
     "JointVelocityTask",
     "KinematicsError",
-    "Limit",
     "PositionTask",
     "PostureTask",
     "Task",
-    "VelocityLimit",
     "delta_jacobian",
     "orientation_delta",
-    "velocity_bounds",
 ]

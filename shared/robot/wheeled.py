@@ -9,7 +9,7 @@ and extracts the arm's PoE description (screw axes in Σb, home pose of Σa) fro
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -33,6 +33,8 @@ class WheeledProfile:
         torso_site, hand_site: MJCF sites of Σb and Σa. wheels: the two wheel bodies (left, right).
         arm: the planner's three arm joints (J1 yaw, J2 and J3 pitch). held: other arm joints -> angle [rad].
         z_range: torso-centre height range [m]. start_base (4,) [x, y, z, α], start_arm (3,) [rad].
+        retarget: the profile's ``[retarget]`` table as written (read by
+            :mod:`services.retarget.mobile`, which checks it); empty when absent.
     """
 
     name: str
@@ -47,6 +49,7 @@ class WheeledProfile:
     z_range: tuple[float, float]
     start_base: np.ndarray
     start_arm: np.ndarray
+    retarget: dict = field(default_factory=dict)
 
     @property
     def arm_chain(self) -> tuple[str, ...]:
@@ -106,6 +109,7 @@ def load_wheeled_profile(name_or_path: str | Path) -> WheeledProfile:
             z_range=tuple(float(v) for v in plan["z_range"]),
             start_base=np.array(plan["start_base"], dtype=float),
             start_arm=np.array(plan["start_arm"], dtype=float),
+            retarget=dict(raw.get("retarget", {})),
         )
     except KeyError as exc:
         raise ProfileError(f"{path}: missing field {exc}") from None

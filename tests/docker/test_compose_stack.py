@@ -14,6 +14,7 @@ The figures of every step go to ``runs/<session>_docker.json`` and the log.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -129,17 +130,27 @@ def _start(compose: Compose, bus: BusLog, figures: dict, key: str) -> None:
     figures[f"{key}_up_s"] = {"alive": round(t_alive - t0, 2), "first_frame_at_robot": round(t_flow - t0, 2)}
 
 
-@pytest.fixture(scope="module")
-def stack(env, figures):
-    compose = Compose(env)
-    figures["session"] = env["MIMIC_SESSION"]
-    bus = BusLog(REPO / "runs" / f"{env['MIMIC_SESSION']}_bus.jsonl")
+@contextlib.contextmanager
+def _running(compose: Compose, figures: dict, key: str, timings: str):
+    """The stack of ``compose`` up (:func:`_start`, figures under ``key``) for the block, then down.
+
+    Yields:
+        (compose, the BusLog of the session), the compose timings go to ``figures[timings]``.
+    """
+    bus = BusLog(REPO / "runs" / f"{compose.env['MIMIC_SESSION']}_bus.jsonl")
     try:
-        _start(compose, bus, figures, "plain")
+        _start(compose, bus, figures, key)
         yield compose, bus
     finally:
         _down(compose)
-        figures["compose_timings_s"] = dict(compose.timings)
+        figures[timings] = dict(compose.timings)
+
+
+@pytest.fixture(scope="module")
+def stack(env, figures):
+    figures["session"] = env["MIMIC_SESSION"]
+    with _running(Compose(env), figures, "plain", "compose_timings_s") as running:
+        yield running
 
 
 def test_01_solver_swap_mid_stream_starts_from_the_measured_state(stack, figures, vmax):
@@ -428,13 +439,8 @@ def secure(env, figures, stack):
     figures["secure_certs_s"] = round(time.time() - t0, 2)
     e = {**env, "MIMIC_SESSION": session, "MIMIC_CERTS": str(certs)}
     compose = Compose(e, files=[*compose_plain.files, *SECURE_FILES])
-    bus = BusLog(REPO / "runs" / f"{session}_bus.jsonl")
-    try:
-        _start(compose, bus, figures, "secure")
-        yield compose, bus
-    finally:
-        _down(compose)
-        figures["secure_compose_timings_s"] = dict(compose.timings)
+    with _running(compose, figures, "secure", "secure_compose_timings_s") as running:
+        yield running
 
 
 def _intrude(compose: Compose, *args: str) -> dict:

@@ -52,6 +52,28 @@ class _Watch:
         with self.lock:
             self.retarget = ServiceStatus.decode(s.payload.to_bytes())
 
+    def wait_retarget(self, pred, timeout: float = 5.0) -> ServiceStatus | None:
+        """The latest retarget status once ``pred(status)`` holds, or the latest after ``timeout`` [s]."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self.lock:
+                st = self.retarget
+            if (st is not None and pred(st)) or time.monotonic() >= deadline:
+                return st
+            time.sleep(0.1)
+
+
+def _send_wrist_and_elbow_only(pub, seqs: range) -> None:
+    """Right wrist + elbow frames (no shoulders, identity rotations) numbered ``seqs``, at 60 Hz."""
+    q = np.array([1.0, 0, 0, 0])
+    for seq in seqs:
+        bones = {
+            "right_wrist": Bone(np.array([0.3, -0.25, 0.1]), q),
+            "right_elbow": Bone(np.array([0.1, -0.3, 0.2]), q),
+        }
+        pub.put(HumanFrame(Header(seq, seq / 60, time.time_ns()), "partial", Pose(np.zeros(3), q), bones).encode())
+        time.sleep(1 / 60)
+
 
 def test_readme_live_snippet_moves_the_robot(local_stack):
     """The snippet publishes on $MIMIC_SESSION via $MIMIC_CONNECT; the simulated right wrist follows its lift."""
@@ -89,20 +111,8 @@ def test_a_source_without_shoulders_is_told_why_at_once(local_stack, tmp_path):
     watch = _Watch(local_stack)
     q = np.array([1.0, 0, 0, 0])
     pub = local_stack.bus.declare_publisher(local_stack.keys.mocap_frame)
-    for seq in range(40):
-        bones = {
-            "right_wrist": Bone(np.array([0.3, -0.25, 0.1]), q),
-            "right_elbow": Bone(np.array([0.1, -0.3, 0.2]), q),
-        }
-        pub.put(HumanFrame(Header(seq, seq / 60, time.time_ns()), "partial", Pose(np.zeros(3), q), bones).encode())
-        time.sleep(1 / 60)
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
-        with watch.lock:
-            st = watch.retarget
-        if st is not None and st.rejects.get("uncalibrated", 0) >= 30:
-            break
-        time.sleep(0.1)
+    _send_wrist_and_elbow_only(pub, range(40))
+    st = watch.wait_retarget(lambda st: st.rejects.get("uncalibrated", 0) >= 30)
     # Every frame that arrived (the first few may precede the route) was rejected, none retargeted.
     assert st is not None and st.state == "degraded" and st.rejects.get("uncalibrated", 0) >= 30, st
     assert st.counts.get("published", 0) == 0, st
@@ -123,18 +133,6 @@ def test_a_source_without_shoulders_is_told_why_at_once(local_stack, tmp_path):
     assert shown.returncode == 0 and json.loads(shown.stdout) == {"calibrated": False}, shown
     run = subprocess.run([*cmd, "--file", str(cal_file)], env=env, cwd=REPO_ROOT, capture_output=True, text=True)
     assert run.returncode == 0 and json.loads(run.stdout)["calibrated"] is True, run
-    for seq in range(40, 60):
-        bones = {
-            "right_wrist": Bone(np.array([0.3, -0.25, 0.1]), q),
-            "right_elbow": Bone(np.array([0.1, -0.3, 0.2]), q),
-        }
-        pub.put(HumanFrame(Header(seq, seq / 60, time.time_ns()), "partial", Pose(np.zeros(3), q), bones).encode())
-        time.sleep(1 / 60)
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
-        with watch.lock:
-            st = watch.retarget
-        if st.counts.get("published", 0) >= 20:
-            break
-        time.sleep(0.1)
+    _send_wrist_and_elbow_only(pub, range(40, 60))
+    st = watch.wait_retarget(lambda st: st.counts.get("published", 0) >= 20)
     assert st.state == "ok" and st.counts.get("published", 0) >= 20, st

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -114,3 +115,69 @@ def test_a_replay_into_a_running_stack_loses_no_frame(local_stack, tmp_path):
     assert done["published"] >= 100, done  # replayed at the clip rate: retarget keeps up
     assert not st.rejects.get("seq_backwards") and not st.rejects.get("duplicate_seq"), st.rejects
     assert st.extra.get("resync") == 1.0, st.extra
+
+
+def _mimic(stack, *argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", *argv],
+        cwd=REPO_ROOT,
+        env={**os.environ, **stack.client_env(), "PYTHONPATH": str(REPO_ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_two_sources_the_stack_follows_the_one_chosen_by_query(local_stack):
+    """Two sources publish at once: retarget follows the first, `mimic source B` switches to B at once
+    (its targets only), says so, rejects the other as other_source; an unseen name is refused."""
+    from shared.messages import TaskTargets
+
+    local_stack.start_all(["retarget"])
+    watch = StatusWatch(local_stack)
+    seqs: list[int] = []
+    sub = local_stack.bus.declare_subscriber(
+        local_stack.keys.targets, lambda s: seqs.append(TaskTargets.decode(s.payload.to_bytes()).hdr.seq)
+    )
+    pub = local_stack.bus.declare_publisher(local_stack.keys.mocap_frame)
+    deadline = time.monotonic() + 10
+    while not pub.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.05)
+    stop = threading.Event()
+
+    def publish() -> None:  # "a" seq 0.., "b" seq 100000.., interleaved at 60 Hz each
+        i = 0
+        while not stop.is_set():
+            pub.put(frame(i, "a").encode())
+            pub.put(frame(100_000 + i, "b").encode())
+            i += 1
+            time.sleep(1 / 60)
+
+    sender = threading.Thread(target=publish, daemon=True)
+    sender.start()
+    try:
+        watch.wait("retarget", lambda s: s.counts.get("published", 0) >= 30, timeout=20)
+        shown = _mimic(local_stack, "source")
+        assert shown.returncode == 0, shown.stderr
+        before = json.loads(shown.stdout)
+        assert before["follow"] == "a" and before["chosen"] is None and set(before["sources"]) == {"a", "b"}
+        assert seqs and max(seqs) < 100_000  # only "a" was retargeted
+
+        refused = _mimic(local_stack, "source", "nobody")
+        errors = [ln for ln in refused.stderr.splitlines() if " E " in ln]
+        assert refused.returncode == 1 and len(errors) == 1 and "no frame from source 'nobody'" in errors[0]
+
+        chosen = _mimic(local_stack, "source", "b")
+        assert chosen.returncode == 0, chosen.stderr
+        assert json.loads(chosen.stdout)["follow"] == "b" and json.loads(chosen.stdout)["chosen"] == "b"
+        n = len(seqs)
+        time.sleep(1.0)
+        after = seqs[n + 2 :]  # a frame or two of "a" may have been in retarget's queue already
+        assert len(after) >= 20 and min(after) >= 100_000, after[:10]
+        st = watch.wait("retarget", lambda s: s.rejects.get("other_source", 0) > before["sources"]["b"])
+        assert "while following 'b'" in st.last_error, st.last_error
+        assert "following source 'b', chosen explicitly" in local_stack.output(None)
+    finally:
+        stop.set()
+        sender.join(2)
+        sub.undeclare()

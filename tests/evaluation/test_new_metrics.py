@@ -17,19 +17,8 @@ from services.evaluation.reachability import IK_TOL, ArmIk, check_targets
 from services.evaluation.runner import load_and_retarget, run_algorithm
 from services.retarget.retargeter import RetargetConfig
 from shared.messages import TARGET_NAMES, Target
-from shared.robot.pinocchio_model import build_robot_model
 from tests.evaluation.test_metrics import K, synthetic_trace
 from tests.evaluation.test_runner import DURATION, RATE, fk_targets
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return build_robot_model()
-
-
-@pytest.fixture(scope="module")
-def arms():
-    return build_robot_model(with_waist=False)
 
 
 def test_p99_is_the_99th_percentile():
@@ -38,8 +27,8 @@ def test_p99_is_the_99th_percentile():
     assert s["p99"] == pytest.approx(990.0) and s["max"] == 1000.0 and s["mean"] == pytest.approx(500.0)
 
 
-def test_stuck_counts_the_longest_reachable_miss(robot):
-    tr = synthetic_trace(robot, {})
+def test_stuck_counts_the_longest_reachable_miss(robot17):
+    tr = synthetic_trace(robot17, {})
     tr.kin_p["left_wrist"][40:90] += np.array([0.03, 0.0, 0.0])  # 3 cm off for 50 ticks
     tr.kin_p["right_wrist"][100:120] += np.array([0.0, 0.05, 0.0])  # 5 cm off for 20 ticks
     tr.kin_p["left_wrist"][150:160] += np.array([0.01, 0.0, 0.0])  # 1 cm: under the 2 cm threshold
@@ -49,75 +38,75 @@ def test_stuck_counts_the_longest_reachable_miss(robot):
     assert stuck_seconds(tr, ok) == pytest.approx(20 * tr.dt)
 
 
-def test_jerk_of_a_cubic_is_its_constant_third_derivative(robot):
-    tr = synthetic_trace(robot, {})
+def test_jerk_of_a_cubic_is_its_constant_third_derivative(robot17):
+    tr = synthetic_trace(robot17, {})
     t = np.arange(K) * tr.dt
-    tr.q = np.tile(robot.q_rest, (K, 1))
+    tr.q = np.tile(robot17.q_rest, (K, 1))
     tr.q[:, 0] += 5.0 * t**3 / 6.0  # jerk 5 rad/s^3 on one joint of n
     n = tr.q.shape[1]
     assert jerk_rms(tr) == pytest.approx(5.0 / np.sqrt(n), rel=1e-6)
 
 
-def test_ik_check_reaches_forward_kinematics_and_rejects_far_points(arms):
+def test_ik_check_reaches_forward_kinematics_and_rejects_far_points(robot14):
     rng = np.random.default_rng(3)
-    ik = ArmIk(arms, "left")
-    for q in arms.random_configurations(5, rng):
-        p = arms.frame_poses(q, names=("left_wrist", "left_elbow"))
+    ik = ArmIk(robot14, "left")
+    for q in robot14.random_configurations(5, rng):
+        p = robot14.frame_poses(q, names=("left_wrist", "left_elbow"))
         res, _ = ik.solve(p["left_wrist"][0])
         assert res <= IK_TOL
         # the pair the posture makes, from a start 0.2 rad off it (the stream check warm-starts likewise)
-        start = arms.clip(q + 0.2 * rng.uniform(-1.0, 1.0, q.shape))
+        start = robot14.clip(q + 0.2 * rng.uniform(-1.0, 1.0, q.shape))
         res, _ = ik.solve(p["left_wrist"][0], p["left_elbow"][0], q0=start)
         assert res <= 0.01
-    far = ik.robot.frame_poses(arms.q_rest, names=("left_wrist",))["left_wrist"][0] + np.array([0.0, 0.0, 1.0])
+    far = ik.robot.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][0] + np.array([0.0, 0.0, 1.0])
     res, _ = ik.solve(far)
     assert res > 0.2  # 1 m above the hanging hand is ~0.65 m from the shoulder; the arm reaches 0.38 m
 
 
-def test_reachability_report_counts_every_valid_target(robot, arms):
-    targets = fk_targets(arms, np.arange(0.0, 0.3, 0.05))
+def test_reachability_report_counts_every_valid_target(robot17, robot14):
+    targets = fk_targets(robot14, np.arange(0.0, 0.3, 0.05))
     # one frame with the left wrist 1 m away, one with it invalid (not counted)
     bad = targets[2].targets["left_wrist"]
     targets[2].targets["left_wrist"] = Target(bad.p + np.array([1.0, 0, 0]), bad.q, bad.v, bad.w, True, True)
     t5 = targets[5].targets["left_wrist"]
     targets[5].targets["left_wrist"] = Target(t5.p, t5.q, t5.v, t5.w, False, True)
-    rep = check_targets(arms, targets)
+    rep = check_targets(robot14, targets)
     assert rep.fraction() == pytest.approx(10 / 11)  # 12 wrist targets, 1 invalid, 1 out of reach
     assert not rep.reachable()["left"][2] and rep.reachable()["left"][5]
-    tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", collisions=False)
-    m = trace_metrics(tr, robot, report=rep)
+    tr = run_algorithm(robot17, targets, "hqp-nullspace", qp="daqp", collisions=False)
+    m = trace_metrics(tr, robot17, report=rep)
     assert m["reachable_fraction"] == pytest.approx(10 / 11)
     # the miss spans the unreachable frame (0.05 s, not counted) and the way back (counted)
     everything = {s: np.ones(len(tr.t), bool) for s in ("left", "right")}
     assert stuck_seconds(tr, everything) - m["stuck_s"] == pytest.approx(0.05, abs=0.006)
 
 
-def test_clearance_is_positive_at_rest_and_negative_with_a_hand_in_the_torso(robot):
-    sc = SelfCollision(robot.profile, robot.joint_names)
-    rest = sc.clearance(robot.q_rest)
+def test_clearance_is_positive_at_rest_and_negative_with_a_hand_in_the_torso(robot17):
+    sc = SelfCollision(robot17.profile, robot17.joint_names)
+    rest = sc.clearance(robot17.q_rest)
     assert 0.01 < rest < 0.2
-    q = robot.q_rest.copy()
-    j = {n: i for i, n in enumerate(robot.joint_names)}
+    q = robot17.q_rest.copy()
+    j = {n: i for i, n in enumerate(robot17.joint_names)}
     # left upper arm rolled in against the body, elbow folded: the forearm goes into the torso
     q[j["left_shoulder_pitch_joint"]] = 0.0
     q[j["left_shoulder_roll_joint"]] = -0.6
     q[j["left_shoulder_yaw_joint"]] = 0.0
     q[j["left_elbow_joint"]] = 2.0
-    assert sc.clearance(robot.clip(q)) < -0.02
+    assert sc.clearance(robot17.clip(q)) < -0.02
 
 
-def test_mink_peer_tracks_reachable_targets(robot):
-    targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE))
-    tr = run_algorithm(robot, targets, "mink", collisions=False)
-    m = trace_metrics(tr, robot)
+def test_mink_peer_tracks_reachable_targets(robot17):
+    targets = fk_targets(robot17, np.arange(0.0, DURATION, 1.0 / RATE))
+    tr = run_algorithm(robot17, targets, "mink", collisions=False)
+    m = trace_metrics(tr, robot17)
     assert m["wrist_err_cm"]["mean"] < 0.5, m["wrist_err_cm"]
     assert m["limit_violations"] == 0
-    assert tr.q.shape[1] == robot.nq and set(np.unique(tr.status)) == {"ok"}
+    assert tr.q.shape[1] == robot17.nq and set(np.unique(tr.status)) == {"ok"}
 
 
-def test_summary_has_p99_of_the_worst_clip_and_sums_collisions(robot):
-    a = trace_metrics(synthetic_trace(robot, {n: np.array([0.01, 0, 0]) for n in TARGET_NAMES}), robot)
-    b = trace_metrics(synthetic_trace(robot, {n: np.array([0.04, 0, 0]) for n in TARGET_NAMES}), robot)
+def test_summary_has_p99_of_the_worst_clip_and_sums_collisions(robot17):
+    a = trace_metrics(synthetic_trace(robot17, {n: np.array([0.01, 0, 0]) for n in TARGET_NAMES}), robot17)
+    b = trace_metrics(synthetic_trace(robot17, {n: np.array([0.04, 0, 0]) for n in TARGET_NAMES}), robot17)
     a["self_collisions"], b["self_collisions"] = 2, 3
     a["stuck_s"], b["stuck_s"] = 0.1, 0.4
     s = summarise([{"clip": "a", "frames": 30, "algos": {"x": a}}, {"clip": "b", "frames": 10, "algos": {"x": b}}])
@@ -148,7 +137,7 @@ def _renamed_rig(src, dst) -> None:
     dst.write_text(text.replace("Hips", "Pelvis0"))
 
 
-def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, tmp_path, robot, caplog):
+def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, tmp_path, robot17, caplog):
     src = next(p for p in bvh_clips if "raise-up-both-hands_normal" in p.name)
     clip = tmp_path / "rig.bvh"
     _renamed_rig(src, clip)
@@ -172,8 +161,8 @@ def test_unknown_rig_is_a_one_line_error_and_a_skeleton_map_fixes_it(bvh_clips, 
         }
     text = 'name = "renamed"\n[bones]\n' + "".join(f'{k} = "{v}"\n' for k, v in bones.items())
     smap.write_text(text + '[hips]\nleft = "SinUpperLeg"\nright = "DexUpperLeg"\n')  # as the built-in map
-    _, mapped = load_and_retarget(clip, robot, retarget={}, skeleton_map=smap)
-    _, original = load_and_retarget(src, robot, retarget={})
+    _, mapped = load_and_retarget(clip, robot17, retarget={}, skeleton_map=smap)
+    _, original = load_and_retarget(src, robot17, retarget={})
     assert len(mapped) == len(original)
     for a, b in zip(mapped[::10], original[::10]):
         for n in TARGET_NAMES:

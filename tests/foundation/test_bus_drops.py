@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 
@@ -113,16 +112,6 @@ def test_slot_decodes_on_take_once_and_counts_bad_payloads():
 
 
 # ----------------------------------------------------------------------------- on a real bus
-
-
-@pytest.fixture()
-def router(zenoh_endpoint):
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", json.dumps([zenoh_endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf):
-        yield zenoh_endpoint
 
 
 def _wait(pred, timeout: float = 20.0) -> bool:

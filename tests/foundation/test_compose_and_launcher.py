@@ -19,6 +19,7 @@ from services.launcher.stack import (
     NETWORK_ENV,
     forget_state,
     load_stack,
+    local_command,
     local_environment,
     select,
 )
@@ -126,3 +127,47 @@ def test_up_starts_services_and_sigterm_leaves_no_process(zenoh_endpoint):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_local_commands_bind_loopback_and_compose_publishes_on_loopback():
+    """The loopback rewrite (`local_command`, `local_environment`): every `0.0.0.0` bind of a compose
+    command or environment runs on 127.0.0.1 locally; every port compose publishes is on loopback."""
+    assert local_command(["mimic", "ingest", "--udp", "0.0.0.0:9870"]) == ["mimic", "ingest", "--udp", "127.0.0.1:9870"]
+    assert local_command(["mimic", "x", "--note", "10.0.0.0:1"]) == ["mimic", "x", "--note", "10.0.0.0:1"]
+    stack = load_stack(env={})
+    # In containers the ingest and the router must bind every interface (their loopback is private).
+    assert stack["ingest"].command[-1] == "0.0.0.0:9870"
+    assert "0.0.0.0" in stack["zenoh"].environment["MIMIC_ROUTER_LISTEN"]
+    for name, spec in stack.items():
+        local = [*local_command(spec.command), *local_environment(spec, "tcp/127.0.0.1:5555").values()]
+        assert not [a for a in local if "0.0.0.0" in a], (name, local)
+    import yaml
+
+    doc = yaml.safe_load(COMPOSE_FILE.read_text())
+    ports = [p for svc in doc["services"].values() for p in svc.get("ports", [])]
+    assert ports and all(str(p).startswith("127.0.0.1:") for p in ports), ports
+
+
+def _udp_binds(port: int) -> list[str]:
+    """Local addresses (hex, as in /proc/net/udp) of the UDP sockets bound to ``port``."""
+    rows = Path("/proc/net/udp").read_text().splitlines()[1:]
+    return [r.split()[1].split(":")[0] for r in rows if int(r.split()[1].split(":")[1], 16) == port]
+
+
+def test_the_live_ingest_mimic_up_starts_binds_loopback(tmp_path, zenoh_endpoint):
+    """The compose `ingest` (0.0.0.0 in its command), started as `mimic up` starts it, on a free port:
+    its UDP socket is bound to 127.0.0.1, not to every interface."""
+    import socket
+
+    from services.launcher.local_stack import LocalStack
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    compose = tmp_path / "compose.yml"  # the repo's file, the ingest on a free port
+    compose.write_text(COMPOSE_FILE.read_text().replace("0.0.0.0:9870", f"0.0.0.0:{port}"))
+    with LocalStack(f"bind{port}", zenoh_endpoint, compose=compose) as stack:
+        assert stack.spec["ingest"].command[-1] == f"0.0.0.0:{port}"
+        stack.start_all(["ingest"], timeout=120)
+        binds = _udp_binds(port)
+        assert binds == ["0100007F"], binds  # 127.0.0.1, little-endian hex; 00000000 would be 0.0.0.0

@@ -7,6 +7,9 @@ from dataclasses import dataclass
 
 import pytest
 
+from services.logger.cli import add_arguments as log_arguments
+from services.logger.cli import configs as log_configs
+from services.logger.config import LoggerConfig, RecordingConfig
 from services.retarget.cli import add_retarget_options
 from services.retarget.cli import config_from_args as retarget_config
 from services.retarget.retargeter import RetargetConfig
@@ -69,6 +72,7 @@ def test_service_defaults_are_the_dataclass_defaults():
     assert retarget_config(_parser(lambda p: (add_retarget_options(p), add_bus_args(p))).parse_args([])) == (
         RetargetConfig()
     )
+    assert log_configs(_parser(log_arguments).parse_args([])) == (RecordingConfig(), LoggerConfig())
 
 
 def test_renamed_and_new_flags():
@@ -84,6 +88,9 @@ def test_renamed_and_new_flags():
     args = _parser(sim_arguments).parse_args(["--watchdog", "0.2", "--follow", "b", "--no-velocity-ff"])
     cfg = sim_config(args)
     assert (cfg.watchdog, cfg.solver_id, cfg.velocity_feedforward) == (0.2, "b", False)
+    args = _parser(log_arguments).parse_args(["--no-meshes", "--no-compact", "--operator-offset", "0,-1,0.5"])
+    rc, lc = log_configs(args)
+    assert (lc.meshes, rc.compact, lc.operator_offset) == (False, False, (0.0, -1.0, 0.5))
 
 
 @pytest.mark.parametrize(
@@ -94,6 +101,9 @@ def test_renamed_and_new_flags():
         (SolverConfig, {"gain": 0.0}, "gains"),
         (SimConfig, {"watchdog": 0.0}, "watchdog must be > 0"),
         (RetargetConfig, {"incremental_scale": -1.0}, "incremental_scale"),
+        (LoggerConfig, {"queue": 0}, "queue must be >= 1"),
+        (LoggerConfig, {"robot_rate": float("nan")}, "must be finite"),
+        (RecordingConfig, {"grpc_port": 70000}, "grpc_port must be a TCP port"),
     ],
 )
 def test_configs_validate_themselves(cls, kw, match):

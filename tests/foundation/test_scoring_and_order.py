@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from services.ingest.sanitizer import FrameSanitizer
-from services.launcher.monitor import StackMonitor
+from services.launcher.monitor import STARTUP_S, StackMonitor
 from shared.messages import Header, Pose, RobotState, Target, TaskTargets
 from shared.scoring import TargetScorer
 from shared.sequence import SequenceGuard
@@ -48,6 +48,31 @@ def test_monitor_uses_the_scorer():
     s = mon.summary()
     assert s["wrist_err_cm"]["mean"] == pytest.approx(3.0)  # (5 + 1) / 2 cm
     assert s["latency_ms"]["samples"] == 2 and s["latency_ms"]["max"] == pytest.approx(3.0)
+
+
+def test_monitor_summarises_start_up_apart_from_the_steady_state():
+    """Two clips (the stamp goes back at the second) and a source back after a silence: the robot is
+    20 cm off for the first 0.5 s of each stream, 1 cm off after; the steady figures are 1 cm."""
+    mon = StackMonitor()
+    t0, ns = 10**12, 1_000_000_000
+    seq = 0
+    # 60 Hz; the second clip's stamp starts again from 0; the third stream's stamp goes on, but
+    # after a silence of 2.5 s (the robot held its pose meanwhile).
+    for stream_start, stamp0, n in ((0.0, 0.0, 180), (3.5, 0.0, 180), (9.0, 10.0, 120)):
+        for i in range(n):
+            t = t0 + int((stream_start + i / 60) * ns)
+            off = 0.20 if i / 60 < 0.5 else 0.01
+            mon.on_targets(TaskTargets(Header(i, stamp0 + i / 60, t), targets(i, t, 0.0).targets))
+            mon.on_state(state(i, t, off), now_ns=t + 5_000_000)
+            seq += 1
+    s = mon.summary()
+    w = s["wrist_err_cm"]
+    assert s["error_split"]["streams"] == 3 and s["error_split"]["startup_s"] == STARTUP_S == 1.0
+    assert w["max"] == pytest.approx(20.0) and w["samples"] == seq
+    assert w["steady"]["max"] == pytest.approx(1.0) and w["steady"]["mean"] == pytest.approx(1.0)
+    assert w["startup"]["max"] == pytest.approx(20.0)
+    assert w["startup"]["samples"] == 3 * 60 and w["steady"]["samples"] == seq - 3 * 60
+    assert "first 1 s of each stream" in s["error_split"]["rule"]
 
 
 def test_sequence_guard_rule():

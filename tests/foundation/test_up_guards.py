@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -79,3 +80,34 @@ def test_unused_path_never_names_an_existing_file(tmp_path):
     assert unused_path(rrd) == tmp_path / "s-1.rrd"
     (tmp_path / "s-1.rrd").write_text("2")
     assert unused_path(rrd) == tmp_path / "s-2.rrd"
+
+
+def test_summaries_are_never_overwritten_unless_asked(tmp_path):
+    """Each run's summary goes to a new file (like its recording); --overwrite replaces the asked one."""
+    session = f"sum{free_port()}"
+    earlier = REPO_ROOT / "runs" / f"{session}_summary.json"
+    earlier.parent.mkdir(exist_ok=True)
+    earlier.write_text('{"earlier": "run"}')
+    try:
+        for n in (1, 2):  # the router alone: the quickest stack that writes a summary
+            run = _up("--session", session, "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--only", "zenoh",
+                      "--duration", "0.3")  # fmt: skip
+            assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+            written = REPO_ROOT / "runs" / f"{session}_summary-{n}.json"
+            assert f"summary written: {written}" in run.stderr, run.stderr[-2000:]
+            assert json.loads(written.read_text())["session"] == session
+        assert earlier.read_text() == '{"earlier": "run"}', "a run overwrote an earlier summary"
+
+        asked = tmp_path / "s.json"
+        asked.write_text("{}")
+        args = ("--session", session, "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--only", "zenoh",
+                "--duration", "0.3", "--summary", str(asked))  # fmt: skip
+        kept = _up(*args)
+        assert kept.returncode == 0 and asked.read_text() == "{}"
+        assert json.loads((tmp_path / "s-1.json").read_text())["session"] == session
+        replaced = _up(*args, "--overwrite")
+        assert replaced.returncode == 0 and json.loads(asked.read_text())["session"] == session
+        assert not (tmp_path / "s-2.json").exists()
+    finally:
+        for p in REPO_ROOT.glob(f"runs/{session}_summary*.json"):
+            p.unlink()

@@ -18,6 +18,7 @@ from typing import Any
 
 import msgpack
 import numpy as np
+from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
 from shared.messages import (
@@ -270,6 +271,24 @@ def backwards_sequence(draw: Callable, length: int = 20) -> list[bytes]:
         f.hdr = Header(s, s / 100.0)
         out.append(f.encode())
     return out
+
+
+def for_each_drawn(strategy: st.SearchStrategy, n: int, fn: Callable[[Any], None], rng_seed: int = 0) -> None:
+    """Call ``fn`` on ``n`` values drawn from ``strategy``, as a fuzz run (not a test) wants them.
+
+    Seeded (the same values every run), generation only: no shrinking, no example database,
+    no deadline, no health checks (adversarial strategies are slow and filter a lot on purpose).
+    """
+
+    @seed(rng_seed)
+    @settings(
+        max_examples=n, database=None, deadline=None, phases=[Phase.generate], suppress_health_check=list(HealthCheck)
+    )
+    @given(strategy)
+    def run(value: Any) -> None:
+        fn(value)
+
+    run()
 
 
 # --------------------------------------------------------------------------- oracle

@@ -26,14 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import zenoh
-from hypothesis import HealthCheck, Phase, given, seed, settings
 
 from services.launcher.local_stack import LocalStack
 from shared.bus import bus_args, free_port, open_session
 from shared.keys import Keys
 from shared.messages import HumanFrame, Message, MessageError, ServiceStatus, TaskTargets
 from shared.report import emit_json
-from tests.fuzz.fuzz_payloads import adversarial_payload, backwards_sequence, valid_message
+from tests.fuzz.fuzz_payloads import adversarial_payload, backwards_sequence, for_each_drawn, valid_message
 
 
 @dataclass(frozen=True)
@@ -60,36 +59,14 @@ SERVICES: dict[str, ServiceUnderFuzz] = {
 def collect_payloads(type_name: str, n: int, rng_seed: int = 0) -> list[bytes]:
     """``n`` adversarial payloads of ``type_name`` drawn with hypothesis."""
     out: list[bytes] = []
-
-    @seed(rng_seed)
-    @settings(
-        max_examples=n, database=None, deadline=None, phases=[Phase.generate], suppress_health_check=list(HealthCheck)
-    )
-    @given(adversarial_payload(type_name))
-    def collect(p: bytes) -> None:
-        out.append(p)
-
-    collect()
+    for_each_drawn(adversarial_payload(type_name), n, out.append, rng_seed)
     return out[:n]
 
 
 def collect_backwards(n_sequences: int, rng_seed: int = 0) -> list[bytes]:
     """Frames of ``n_sequences`` sequences whose seq/stamp go backwards (service-level check)."""
     out: list[bytes] = []
-
-    @seed(rng_seed)
-    @settings(
-        max_examples=n_sequences,
-        database=None,
-        deadline=None,
-        phases=[Phase.generate],
-        suppress_health_check=list(HealthCheck),
-    )
-    @given(backwards_sequence())
-    def collect(frames: list[bytes]) -> None:
-        out.extend(frames)
-
-    collect()
+    for_each_drawn(backwards_sequence(), n_sequences, out.extend, rng_seed)
     return out
 
 

@@ -17,11 +17,9 @@ import traceback
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 
-from hypothesis import HealthCheck, Phase, given, seed, settings
-
 from shared.messages import MESSAGE_TYPES
 from shared.report import emit_json
-from tests.fuzz.fuzz_payloads import adversarial_payload, check_payload
+from tests.fuzz.fuzz_payloads import adversarial_payload, check_payload, for_each_drawn
 
 
 def fuzz_type(type_name: str, examples: int, rng_seed: int = 0) -> dict:
@@ -30,16 +28,7 @@ def fuzz_type(type_name: str, examples: int, rng_seed: int = 0) -> dict:
     outcomes: Counter[str] = Counter()
     crashes: list[str] = []
 
-    @seed(rng_seed)
-    @settings(
-        max_examples=examples,
-        database=None,
-        deadline=None,
-        phases=[Phase.generate],
-        suppress_health_check=list(HealthCheck),
-    )
-    @given(adversarial_payload(type_name))
-    def prop(payload: bytes) -> None:
+    def check(payload: bytes) -> None:
         try:
             outcomes[check_payload(cls, payload)] += 1
         except Exception as exc:  # counted, not raised: the run reports every crash
@@ -48,7 +37,7 @@ def fuzz_type(type_name: str, examples: int, rng_seed: int = 0) -> dict:
                 crashes.append(f"{type(exc).__name__}: {exc} | payload[:80]={payload[:80]!r}\n{traceback.format_exc()}")
 
     t0 = time.perf_counter()
-    prop()
+    for_each_drawn(adversarial_payload(type_name), examples, check, rng_seed)
     elapsed = time.perf_counter() - t0
     rejected = {k.split(":", 1)[1]: v for k, v in sorted(outcomes.items()) if k.startswith("rejected:")}
     return {

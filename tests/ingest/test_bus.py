@@ -13,7 +13,6 @@ import time
 
 import numpy as np
 import pytest
-import zenoh
 
 from services.ingest import cli as ingest_cli
 from services.ingest import generate_demo_clips, load_clip
@@ -27,16 +26,6 @@ from tests.conftest import free_port
 
 REPO = REPO_ROOT
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture()
-def router(zenoh_endpoint):
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", json.dumps([zenoh_endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf):
-        yield zenoh_endpoint
 
 
 class Collector:

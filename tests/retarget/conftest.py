@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from shared.messages import Bone, Header, HumanFrame, Pose
-from shared.robot.pinocchio_model import build_robot_model
 
 IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -46,12 +45,6 @@ def random_quat(rng: np.random.Generator) -> np.ndarray:
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     return q if q[0] >= 0 else -q
-
-
-@pytest.fixture(scope="session")
-def robot14():
-    """G1 reduced to the 14 arm joints (waist at rest)."""
-    return build_robot_model(with_waist=False)
 
 
 @pytest.fixture(scope="session")

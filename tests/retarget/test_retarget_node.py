@@ -19,7 +19,6 @@ from conftest import make_frame
 from services.retarget.calibration import anthropometric
 from services.retarget.node import RetargetNode
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from services.router.cli import router_config
 from shared.bus import ServiceRunner, bus_args, query, zenoh_config
 from shared.keys import Keys
 from shared.messages import TaskTargets
@@ -27,13 +26,6 @@ from shared.robot.profile import DEFAULT_PROFILE
 from shared.targets import TARGET_NAMES
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture()
-def router(zenoh_endpoint):
-    session = zenoh.open(router_config([zenoh_endpoint], None))
-    yield zenoh_endpoint
-    session.close()
 
 
 def _client(endpoint: str) -> zenoh.Session:

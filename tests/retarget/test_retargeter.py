@@ -211,6 +211,26 @@ def test_two_sources_follow_one_and_say_so(make):
     assert r.step(_from("b", 0, 0.0, 2)) is not None
 
 
+def test_a_source_chosen_at_run_time_is_followed_and_the_choice_can_be_dropped(make, caplog):
+    """follow_source() (the ``keys.retarget_source`` query) switches from the first-seen source at once."""
+    r = make()
+    ms = 1_000_000
+    for i in range(10):
+        assert r.step(_from("a", i, i / 60, 17 * ms * i + 1)) is not None
+        assert r.step(_from("b", 100 + i, 5 + i / 60, 17 * ms * i + 2)) is None
+    assert r.followed_source == "a" and r.sources_seen == {"a": 10, "b": 10}
+    with caplog.at_level("INFO"):
+        r.follow_source("b")
+    assert r.followed_source == "b" and "following source 'b', chosen explicitly" in caplog.text
+    t = 17 * ms * 10
+    assert r.step(_from("a", 10, 10 / 60, t + 1)) is None and r.last_reject[0] == "other_source"
+    assert r.step(_from("b", 110, 5 + 10 / 60, t + 2)) is not None and r.counts["new_source"] == 1
+    assert "ignoring frames of source 'a'" in caplog.text  # the newly ignored one is named
+    r.follow_source("")  # no choice: the followed one stays until it is silent
+    assert r.followed_source == "b"
+    assert r.step(_from("a", 11, 11 / 60, t + 3)) is None
+
+
 def test_a_restarted_source_is_followed_from_its_first_frame(make):
     """The same sender run again (seq from 0, frames made later): no frame of the second run is lost."""
     r = make()

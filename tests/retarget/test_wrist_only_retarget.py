@@ -87,3 +87,21 @@ def test_real_clip_publishes_upper_arms_and_wrist_only_drops_them(bvh_clips, rob
     # 5-6 mm: the swivel elbow sits on a sphere about the least-squares shoulder centre, which the
     # G1's non-intersecting shoulder axes reach to about half a centimetre (see retarget/elbow.py).
     assert np.median(gaps) < 0.007
+
+
+def test_readme_wrist_only_wording_matches_the_code():
+    """README's wrist-only bullet: the default arm length, the one-hand wait and the flag it names."""
+    import re
+
+    from services.cli import build_parser
+    from services.retarget.calibration import DEFAULT_ARM_LENGTH
+    from services.retarget.retargeter import RetargetConfig
+    from shared.paths import REPO_ROOT
+
+    text = (REPO_ROOT / "README.md").read_text()
+    bullet = text[text.index("- **A wrist-only source**") :].split("\n- ", 1)[0]
+    assert f"(default {DEFAULT_ARM_LENGTH:g} m;" in bullet
+    assert f"one hand alone: after {RetargetConfig().one_arm_after} frames" in bullet
+    length = float(re.search(r"mimic retarget --arm-length (\d\.\d+)`", bullet).group(1))
+    args = build_parser("retarget").parse_args(["retarget", "--arm-length", str(length)])
+    assert args.arm_length == length and RetargetConfig().arm_length == DEFAULT_ARM_LENGTH

@@ -7,19 +7,22 @@ rendered per-service client config.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
 
+from services.launcher.local_stack import ROUTER_TIMEOUT_S
 from services.launcher.supervisor import stop_processes
-from shared.bus import ServiceRunner, bus_args
+from shared.bus import ServiceRunner, bus_args, free_port, wait_for_endpoint
 from shared.keys import Keys
 from shared.messages import ServiceStatus
 from shared.paths import REPO_ROOT
@@ -47,8 +50,6 @@ def certs(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def router(certs):
-    from tests.conftest import free_port
-
     port = free_port()
     proc = subprocess.Popen(
         [*CLI, "router", "--config", str(certs["project"] / "router.json5"), "--listen", f"tls/127.0.0.1:{port}"],
@@ -57,8 +58,11 @@ def router(certs):
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(1.5)
+    # Ready when it accepts connections, as LocalStack.start_router waits (whose own plain session
+    # could not join this TLS + ACL router, hence the router is started here).
+    listening = wait_for_endpoint(f"tls/127.0.0.1:{port}", ROUTER_TIMEOUT_S)
     assert proc.poll() is None, proc.stderr.read()
+    assert listening, f"the router does not listen on port {port} after {ROUTER_TIMEOUT_S:.0f} s"
     yield f"tls/localhost:{port}"
     stop_processes(proc)
 
@@ -71,6 +75,13 @@ def _conf(certs_dir: Path, name: str, endpoint: str) -> zenoh.Config:
 
 def _open(certs: dict, name: str, endpoint: str, ca: str = "project") -> zenoh.Session:
     return zenoh.open(_conf(certs[ca], name, endpoint))
+
+
+@contextlib.contextmanager
+def _sessions(certs: dict, endpoint: str, *names: str) -> Iterator[list[zenoh.Session]]:
+    """One session per service ``name`` (its project certificate), all closed after the block."""
+    with contextlib.ExitStack() as opened:
+        yield [opened.enter_context(_open(certs, n, endpoint)) for n in names]
 
 
 class Inbox:
@@ -108,12 +119,7 @@ def _put_then_sentinel(inbox: Inbox, sender: zenoh.Session, key: str, payload: b
 
 def test_known_services_publish_their_keys_and_run_a_service_runner(certs, router):
     k = Keys("live")
-    with (
-        _open(certs, "logger", router) as logger,
-        _open(certs, "ingest", router) as ingest,
-        _open(certs, "solver", router) as solver,
-        _open(certs, "sim", router) as sim,
-    ):
+    with _sessions(certs, router, "logger", "ingest", "solver", "sim") as (logger, ingest, solver, sim):
         inbox = Inbox(logger)
         time.sleep(0.5)
         for sess, key in ((ingest, k.mocap_frame), (solver, k.command("hqp")), (sim, k.sim_state)):
@@ -146,18 +152,14 @@ def test_known_services_publish_their_keys_and_run_a_service_runner(certs, route
     ],
 )
 def test_known_service_cannot_publish_on_another_services_key(certs, router, who, key):
-    with (
-        _open(certs, "logger", router) as logger,
-        _open(certs, who, router) as sender,
-        _open(certs, "ingest", router) as ingest,
-    ):
+    with _sessions(certs, router, "logger", who, "ingest") as (logger, sender, ingest):
         inbox = Inbox(logger)
         assert not _put_then_sentinel(inbox, sender, key, b"forged", ingest), f"{who} could put on {key}"
 
 
 def test_replay_may_publish_into_replay_sessions(certs, router):
     key = Keys("replay-ab1").mocap_frame
-    with _open(certs, "logger", router) as logger, _open(certs, "replay", router) as replay:
+    with _sessions(certs, router, "logger", "replay") as (logger, replay):
         inbox = Inbox(logger)
         time.sleep(0.3)
         replay.put(key, b"replayed")
@@ -166,11 +168,7 @@ def test_replay_may_publish_into_replay_sessions(certs, router):
 
 def test_unknown_common_name_connects_but_is_denied_everything(certs, router):
     k = Keys("live")
-    with (
-        _open(certs, "logger", router) as logger,
-        _open(certs, "ingest", router) as ingest,
-        _open(certs, "guest", router) as guest,
-    ):
+    with _sessions(certs, router, "logger", "ingest", "guest") as (logger, ingest, guest):
         inbox = Inbox(logger)
         spy = Inbox(guest)
         for key in (k.mocap_frame, k.command("hqp"), k.status("guest")):

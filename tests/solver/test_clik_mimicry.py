@@ -4,28 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
-import pytest
 
 from services.solver.clik_mimicry import ClikMimicry, clik_step, secondary_velocity
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.registry import make_algorithm
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, orientation_delta
 from shared.messages import Header, Target, TaskTargets
-from shared.robot.pinocchio_model import build_robot_model
 from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat
 
 LINK = "left_shoulder_yaw_link"
-
-
-@pytest.fixture(scope="module")
-def robot17():
-    return build_robot_model()
-
-
-@pytest.fixture(scope="module")
-def robot14():
-    return build_robot_model(with_waist=False)
 
 
 def _arm(robot, side="left"):

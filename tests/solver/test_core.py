@@ -9,19 +9,8 @@ import pytest
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import DaqpBackend, QpResult
 from shared.messages import Header, Target, TaskTargets
-from shared.robot.pinocchio_model import build_robot_model
 
 DT = 0.002
-
-
-@pytest.fixture(scope="module")
-def robot17():
-    return build_robot_model()
-
-
-@pytest.fixture(scope="module")
-def robot14():
-    return build_robot_model(with_waist=False)
 
 
 def quat_wxyz(R: np.ndarray) -> np.ndarray:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import queue
 import signal
 import subprocess
 import sys
@@ -12,14 +11,12 @@ import time
 import numpy as np
 import pinocchio as pin
 import pytest
-import zenoh
 
 from services.launcher.supervisor import stop_processes
-from services.router.cli import router_config
-from shared.bus import bus_args, zenoh_config
 from shared.keys import Keys
 from shared.messages import Header, JointCommand, Pose, RobotState, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
+from tests.support.bus_client import BusClient, drain
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -46,13 +43,6 @@ def assert_safe_over_wall_clock(robot, cmds: list[JointCommand]) -> None:
     assert np.all(np.abs(np.diff(qds, axis=0)) <= robot.amax * dt + 1e-6)
 
 
-@pytest.fixture()
-def router(zenoh_endpoint):
-    session = zenoh.open(router_config([zenoh_endpoint], None))
-    yield zenoh_endpoint
-    session.close()
-
-
 TARGETS = ("left_wrist", "right_wrist", "left_elbow", "right_elbow")
 
 
@@ -75,12 +65,10 @@ def test_main_and_shadow_solvers_start_from_the_robot_state_and_publish(router):
     robot = build_robot_model()
     session = "solver_it"
     keys = Keys(session)
-    client = zenoh.open(zenoh_config(bus_args(connect=[router])))
-    got: dict[str, queue.Queue] = {"main": queue.Queue(), "shadow": queue.Queue()}
-    for sid, q in got.items():
-        client.declare_subscriber(keys.command(sid), lambda s, q=q: q.put(JointCommand.decode(s.payload.to_bytes())))
-    state_pub = client.declare_publisher(keys.sim_state)
-    target_pub = client.declare_publisher(keys.targets)
+    client = BusClient(router)
+    got = {sid: client.inbox(keys.command(sid), JointCommand.decode) for sid in ("main", "shadow")}
+    state_pub = client.publisher(keys.sim_state)
+    target_pub = client.publisher(keys.targets)
     rng = np.random.default_rng(8)
     q_robot = robot.random_configurations(1, rng)[0]  # mid-stream: the robot is far from rest
     poses = robot.frame_poses(q_robot)
@@ -122,8 +110,7 @@ def test_main_and_shadow_solvers_start_from_the_robot_state_and_publish(router):
         assert first["shadow"].algo == "wqp"
         # Now targets arrive (a small offset from where the robot is): both track.
         for q in got.values():
-            while not q.empty():
-                q.get()
+            drain(q)
         seen = {"main": []}
         t_end = time.monotonic() + 1.5
         seq = 0
@@ -141,9 +128,7 @@ def test_main_and_shadow_solvers_start_from_the_robot_state_and_publish(router):
             time.sleep(0.01)
         goal = {n: robot.frame_poses(q_robot)[n][0] + np.array([0.0, 0.0, 0.02]) for n in ("left_wrist", "right_wrist")}
         for sid, q in got.items():
-            cmds = list(seen.get(sid, []))
-            while not q.empty():
-                cmds.append(q.get())
+            cmds = [*seen.get(sid, []), *drain(q)]
             # 750 at the nominal 500 Hz; a machine loaded by other jobs (load ~25 on 2 cores) gave 116-199.
             assert len(cmds) > 100, f"{sid}: only {len(cmds)} commands in 1.5 s"
             assert cmds[-1].hdr.seq > 0
@@ -166,10 +151,9 @@ def test_event_trigger_ticks_on_every_target_and_stays_within_limits(router):
     robot = build_robot_model()
     session = "solver_event"
     keys = Keys(session)
-    client = zenoh.open(zenoh_config(bus_args(connect=[router])))
-    got: queue.Queue = queue.Queue()
-    client.declare_subscriber(keys.command("main"), lambda s: got.put(JointCommand.decode(s.payload.to_bytes())))
-    target_pub = client.declare_publisher(keys.targets)
+    client = BusClient(router)
+    got = client.inbox(keys.command("main"), JointCommand.decode)
+    target_pub = client.publisher(keys.targets)
     proc = _start(router, session, "--trigger", "event", "--rate", "50", "--qp", "daqp", "--startup-wait", "0")
     try:
         first = got.get(timeout=40)  # the 50 Hz clock runs before any target
@@ -185,9 +169,7 @@ def test_event_trigger_ticks_on_every_target_and_stays_within_limits(router):
             target_pub.put(TaskTargets(Header(sent, sent / 200), targets).encode())
             time.sleep(0.005)
         time.sleep(0.2)
-        cmds = []
-        while not got.empty():
-            cmds.append(got.get())
+        cmds = drain(got)
         assert proc.poll() is None, proc.stderr.read()
     finally:
         code = _stop(proc)
