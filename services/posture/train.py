@@ -60,7 +60,7 @@ class TrainConfig:
             does not depend on where the robot's arm is.
     """
 
-    hidden: int = 64
+    hidden: int = 128
     epochs: int = 40
     batch: int = 256
     lr: float = 3e-3
