@@ -39,11 +39,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
     t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
-    t.add_argument("--hidden", type=int, default=64, help="hidden units per layer (2 hidden layers)")
+    t.add_argument("--hidden", type=int, default=128, help="hidden units per layer (2 hidden layers)")
     t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
+    t.add_argument("--action-kind", choices=("posture", "velocity"), default="posture",
+                   help="posture: the encoder gives the operator's shoulder posture q* from the hand pose, driven as "
+                   "q0dot = K (q* - q); velocity: the paper's q0dot (label -eta grad H)")  # fmt: skip
+    t.add_argument("--action-gain", type=float, default=None, help="K [1/s] of the posture kind (default 20)")
+    t.add_argument("--no-mirror", dest="mirror", action="store_false",
+                   help="do not add each arm's demonstrations, mirrored, to the other arm's")  # fmt: skip
     from services.posture import bench
 
     bench.add_arguments(sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON"))
@@ -92,7 +98,7 @@ GATE_MIN = 0.03
 def _train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, STATE_LAYOUT
+    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, HAND_INPUTS, STATE_LAYOUT
     from services.posture.policy import save_policy
     from services.posture.relabel import ExperimentConfig, relabel_experiment
     from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip
@@ -112,10 +118,13 @@ def _train(args: argparse.Namespace) -> int:
         clips[p] = prepare_clip(p, robot)
     train = [clips[p] for p in train_paths]
     test = [clips[p] for p in test_paths] or train[-1:]
-    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads)
-    rcfg = RolloutConfig(rate=args.rate)
+    posture = args.action_kind == "posture"
+    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture)
+    rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
+    if args.action_gain is not None:
+        rcfg.action_gain = args.action_gain
     ecfg = ExperimentConfig(chunk_s=args.chunk_s, pretrain_fraction=args.pretrain_fraction,
-                            rounds=args.relabel_rounds, eps=args.eps, seed=args.seed)  # fmt: skip
+                            rounds=args.relabel_rounds, eps=args.eps, seed=args.seed, mirror=args.mirror)  # fmt: skip
     base_meta = {
         "robot": robot.profile.name,
         "sides": list(SIDES),
@@ -126,6 +135,10 @@ def _train(args: argparse.Namespace) -> int:
         "arm_state_layout": list(ARM_STATE_LAYOUT),
         "arms": {s: arms.frames[i].to_dict() for i, s in enumerate(SIDES)},
         "q_ref": {s: [float(x) for x in arms.Q_ref[i]] for i, s in enumerate(SIDES)},
+        "action_kind": args.action_kind,
+        "posture_gain": rcfg.action_gain if posture else 0.0,
+        "encoder_inputs": list(STATE_LAYOUT[:HAND_INPUTS] if posture else STATE_LAYOUT),
+        "mirror_signs": [float(x) for x in arms.mirror] if args.mirror else None,
         "network": {
             "encoder": [14, tcfg.hidden, tcfg.hidden, 3],
             "decoder": [17, tcfg.hidden, tcfg.hidden, 6],

@@ -9,6 +9,10 @@ Per arm (the policy is applied to each arm with that arm's own network):
 - action ``q̇₀`` (3,) [rad/s] on the joints that move the upper-arm link: the shoulder pitch, roll and
   yaw. Seed 004's xMate3 has 4 (its link 4 follows joints 1-4); on the G1 the upper-arm link follows
   the three shoulder joints, and the mimicry gradient ``-η ∇H`` is zero on every other arm joint.
+  Two action kinds (:data:`ACTION_KINDS`): ``"velocity"`` is the paper's ``q̇₀`` itself; ``"posture"``
+  is the operator's shoulder posture ``q*`` (3,) [rad] (the shoulder angles that put the robot's upper
+  arm along the operator's), turned into ``q̇₀ = K (q* - q_shoulder)`` (:func:`posture_action`). A
+  posture depends on the hand pose alone, so its encoder reads ``(Q, p)`` only (:data:`HAND_INPUTS`).
 - decoder input ``(q̇₀, q, x_d)`` (17,): action, joints, and the target pose ``x_d = (Q, p)``.
 - operator arm state (6,): unit directions of the operator's upper arm ``u`` and forearm ``f`` on the
   robot's proportions (robot base frame). The virtual target (the master's forward kinematics) is
@@ -35,6 +39,13 @@ ACTION_LIMIT = 2.0
 STATE_LAYOUT = ("Qw", "Qx", "Qy", "Qz", "px", "py", "pz", *(f"q{i}" for i in range(7)))
 ACTION_LAYOUT = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw")
 ARM_STATE_LAYOUT = ("ux", "uy", "uz", "fx", "fy", "fz")
+#: What the encoder outputs: the null-space velocity q̇₀ [rad/s] or the shoulder posture q* [rad].
+ACTION_KINDS = ("velocity", "posture")
+#: State entries a posture encoder reads: the hand pose (Q, p); the joints are masked out.
+HAND_INPUTS = 7
+#: Posture kind: gain K [1/s] of ``q̇₀ = K (q* - q)`` (the solver's elbow-task order of magnitude; with
+#: ACTION_LIMIT it saturates beyond 0.1 rad of shoulder error; 20 measured 0.3 cm better than 10).
+POSTURE_ACTION_GAIN = 20.0
 
 
 def arm_joints(robot: RobotModel, side: str) -> np.ndarray:
@@ -64,6 +75,11 @@ class ArmFrame:
         d = asdict(self)
         d["centre"] = [float(x) for x in self.centre]
         return d
+
+
+def posture_action(target: np.ndarray, q_shoulder: np.ndarray, gain: float) -> np.ndarray:
+    """q̇₀ (…, 3) [rad/s] pulling the shoulder joints q_shoulder (…, 3) to target (…, 3) [rad], bounded."""
+    return np.clip(gain * (target - q_shoulder), -ACTION_LIMIT, ACTION_LIMIT)
 
 
 def canonical_quat(Q: np.ndarray, Q_ref: np.ndarray) -> np.ndarray:
@@ -97,3 +113,59 @@ def virtual_target(arm: ArmFrame, z: np.ndarray) -> np.ndarray:
     u = z[..., :3] / np.maximum(np.linalg.norm(z[..., :3], axis=-1, keepdims=True), 1e-9)
     f = z[..., 3:6] / np.maximum(np.linalg.norm(z[..., 3:6], axis=-1, keepdims=True), 1e-9)
     return arm.centre + arm.upper * u + arm.fore * f
+
+
+#: Reflection of the robot base frame through its sagittal (x-z) plane.
+_MIRROR = np.diag([1.0, -1.0, 1.0])
+
+
+def mirror_signs(robot: RobotModel, trials: int = 3, tol: float = 1e-3) -> np.ndarray:
+    """Per arm joint (7,): the sign that maps a left-arm angle onto the mirrored right-arm angle.
+
+    Found on the model, not assumed: the sign vector for which the right arm at ``sign * q_left``
+    puts its elbow and wrist at the mirror image of the left arm's (and the wrist orientation at
+    ``M R M``) for random postures.
+
+    Raises:
+        ValueError: the robot's arms are not mirror images of each other (no sign vector fits).
+    """
+    left, right = arm_joints(robot, "left"), arm_joints(robot, "right")
+    rng = np.random.default_rng(0)
+    postures = [rng.uniform(-0.8, 0.8, len(left)) for _ in range(trials)]
+    for bits in range(2 ** len(left)):
+        sign = np.array([1.0 if (bits >> k) & 1 else -1.0 for k in range(len(left))])
+        ok = True
+        for ql in postures:
+            q = robot.q_rest.copy()
+            q[left], q[right] = ql, sign * ql
+            P = robot.frame_poses(q)
+            for f in ("elbow", "wrist"):
+                (pl, Rl), (pr, Rr) = P[f"left_{f}"], P[f"right_{f}"]
+                if np.linalg.norm(_MIRROR @ pl - pr) > tol or np.linalg.norm(_MIRROR @ Rl @ _MIRROR - Rr) > tol:
+                    ok = False
+                    break
+            if not ok:
+                break
+        if ok:
+            return sign
+    raise ValueError(f"{robot.profile.name}: the arms are not mirror images (no joint sign map found)")
+
+
+def mirror_state(S: np.ndarray, sign: np.ndarray) -> np.ndarray:
+    """States (…, 14) of one arm as the other arm's: hand pose reflected through x-z, joints * sign (7,).
+
+    The rotation ``M R M`` has quaternion ``(w, -x, y, -z)``; that keeps ``Q · Q_ref >= 0`` when the
+    other arm's rest wrist is the mirror image of this one's.
+    """
+    out = np.array(S, dtype=float, copy=True)
+    out[..., [1, 3]] *= -1.0
+    out[..., 5] *= -1.0
+    out[..., 7:14] *= sign
+    return out
+
+
+def mirror_arm_state(Z: np.ndarray) -> np.ndarray:
+    """Operator arm states (…, 6) reflected through the x-z plane (both directions' y negated)."""
+    out = np.array(Z, dtype=float, copy=True)
+    out[..., [1, 4]] *= -1.0
+    return out

@@ -24,11 +24,13 @@ import numpy as np
 
 from services.posture.features import (
     ACTION_DIM,
+    ACTION_KINDS,
     ACTION_LIMIT,
     ARM_STATE_DIM,
     DECODER_DIM,
     STATE_DIM,
     ArmFrame,
+    posture_action,
     virtual_target,
 )
 from shared.targets import SIDES
@@ -108,14 +110,16 @@ class PolicyOutput:
     """One inference for both arms (rows in :data:`.features.SIDES` order).
 
     Attributes:
-        qd0: (2, 3) actions [rad/s], within ±ACTION_LIMIT. x_dv: (2, 3) virtual targets [m]. gap: (2,) |x_dv - p| [m].
-        gate: (2,) True where the action may be used.
+        qd0: (2, 3) null-space velocities [rad/s], within ±ACTION_LIMIT. x_dv: (2, 3) virtual targets [m].
+        gap: (2,) |x_dv - p| [m]. gate: (2,) True where the action may be used.
+        action: (2, 3) the encoder's output: q̇₀ itself, or the shoulder posture q* [rad] (posture kind).
     """
 
     qd0: np.ndarray
     x_dv: np.ndarray
     gap: np.ndarray
     gate: np.ndarray
+    action: np.ndarray
 
 
 class PosturePolicy:
@@ -134,8 +138,12 @@ class PosturePolicy:
                                   float(meta["arms"][s]["fore"])) for s in SIDES]  # fmt: skip
             self.threshold = np.array([float(meta["gate_threshold"][s]) for s in SIDES])
             self.Q_ref = np.array([meta["q_ref"][s] for s in SIDES], dtype=float)
+            self.kind = str(meta.get("action_kind", "velocity"))  # files before the posture kind: velocity
+            self.gain = float(meta.get("posture_gain", 0.0))
         except (KeyError, TypeError, ValueError) as exc:
             raise PolicyError(f"model metadata incomplete: {exc}") from None
+        if self.kind not in ACTION_KINDS or (self.kind == "posture" and not self.gain > 0.0):
+            raise PolicyError(f"action kind {self.kind!r} (gain {self.gain}): expected one of {ACTION_KINDS}, gain > 0")
         for side, e, d in zip(SIDES, enc, dec):
             if e[0][0].shape[0] != STATE_DIM or e[-1][0].shape[1] != ACTION_DIM:
                 raise PolicyError(f"{side} encoder maps {e[0][0].shape[0]} -> {e[-1][0].shape[1]}, expected 14 -> 3")
@@ -181,7 +189,12 @@ class PosturePolicy:
         for W, b in self.enc[:-1]:
             x = np.tanh(x @ W + b)
         W, b = self.enc[-1]
-        a = np.clip((x @ W + b).reshape(2, ACTION_DIM), -ACTION_LIMIT, ACTION_LIMIT)
+        a = (x @ W + b).reshape(2, ACTION_DIM)
+        if self.kind == "posture":
+            # The shoulder joints lead the arm chain (features.action_joints): state entries 7..9.
+            qd0 = posture_action(a, S[:, 7 : 7 + ACTION_DIM], self.gain)
+        else:
+            a = qd0 = np.clip(a, -ACTION_LIMIT, ACTION_LIMIT)
         d = self._dec_in  # (2, 17): (q̇₀, q, x_d), reused
         d[:, :ACTION_DIM] = a
         d[:, ACTION_DIM : ACTION_DIM + 7] = S[:, 7:14]
@@ -196,7 +209,8 @@ class PosturePolicy:
         e = x_dv - S[:, 4:7]
         gap = np.sqrt(np.einsum("ij,ij->i", e, e))
         gate = (gap <= self.threshold) & np.isfinite(a).all(1)
-        return PolicyOutput(a, x_dv, gap, gate)
+        gate &= np.isfinite(qd0).all(1)
+        return PolicyOutput(qd0, x_dv, gap, gate, a)
 
     def virtual_target(self, side: int, z: np.ndarray) -> np.ndarray:
         """x_dv (…, 3) of arm states (…, 6) of arm ``side`` (0 left, 1 right)."""

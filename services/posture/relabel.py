@@ -39,6 +39,9 @@ class ExperimentConfig:
         chunk_s: demonstration chunk length [s]. pretrain_fraction: share of the training time the
         expert demonstrates before the first round. rounds: relabelling rounds (n_round).
         eps: Algorithm 1's threshold on ``||a - â||²`` [(rad/s)²]. seed: chunk order.
+        mirror: every fit also learns each arm from the other arm's samples reflected through the
+            sagittal plane (:meth:`.train.Dataset.with_mirror`), twice the demonstrations per arm.
+            Sample counts in the report are before mirroring.
     """
 
     chunk_s: float = 10.0
@@ -46,6 +49,7 @@ class ExperimentConfig:
     rounds: int = 2
     eps: float = 0.0
     seed: int = 0
+    mirror: bool = True
 
 
 def chunks(clips: list[ClipData], chunk_s: float, seed: int) -> list[ClipData]:
@@ -116,6 +120,8 @@ def relabel_experiment(
         return expert_rolls[j]
 
     def train_policy(data: Dataset, tag: str):
+        if cfg.mirror:
+            data = data.with_mirror(arms.mirror)
         w, rep = fit(data, tcfg, fit_progress)
         pol = PosturePolicy(w, make_meta(w, data))
         say(f"{tag}: trained on {len(data)} samples")

@@ -21,11 +21,15 @@ import pinocchio as pin
 
 from services.posture.features import (
     ACTION_DIM,
+    ACTION_KINDS,
     ACTION_LIMIT,
+    POSTURE_ACTION_GAIN,
     ArmFrame,
     action_joints,
     arm_joints,
     arm_state,
+    mirror_signs,
+    posture_action,
     state,
 )
 from services.posture.policy import PosturePolicy
@@ -58,6 +62,9 @@ class ClipData:
         p, v: (2, F, 3) wrist target position [m] and velocity [m/s]. R: (2, F, 3, 3). w: (2, F, 3) [rad/s].
         wrist_ok: (2, F). R_m: (2, F, 3, 3) operator upper arm on the robot; has_m: (2, F).
         elbow: (2, F, 3) reference (swivel) elbow [m]; elbow_ok: (2, F).
+        q_star: (2, F, 3) the operator's shoulder posture [rad]: the robot's shoulder angles that put its
+            elbow and wrist on the reference elbow and the wrist target (the posture kind's label;
+            valid where elbow_ok and wrist_ok).
     """
 
     name: str
@@ -71,6 +78,7 @@ class ClipData:
     has_m: np.ndarray
     elbow: np.ndarray
     elbow_ok: np.ndarray
+    q_star: np.ndarray
 
     @property
     def duration(self) -> float:
@@ -81,7 +89,7 @@ class ClipData:
         s = slice(k0, k1)
         return ClipData(f"{self.name}[{k0}:{k1}]", self.t[s], self.p[:, s], self.R[:, s], self.v[:, s],
                         self.w[:, s], self.wrist_ok[:, s], self.R_m[:, s], self.has_m[:, s], self.elbow[:, s],
-                        self.elbow_ok[:, s])  # fmt: skip
+                        self.elbow_ok[:, s], self.q_star[:, s])  # fmt: skip
 
 
 def prepare_clip(path: str | Path, robot: RobotModel) -> ClipData:
@@ -107,8 +115,28 @@ def prepare_clip(path: str | Path, robot: RobotModel) -> ClipData:
                 R_m[i, k] = quat_to_matrix(tt.upper_arms[side])
                 ok["has_m"][i, k] = True
     t = np.array([tt.hdr.stamp for tt in targets])
+    q_star = shoulder_postures(robot, out["elbow"], out["p"], ok["elbow_ok"] & ok["wrist_ok"])
     return ClipData(clip.name, t, out["p"], R, out["v"], out["w"], ok["wrist_ok"], R_m, ok["has_m"], out["elbow"],
-                    ok["elbow_ok"])  # fmt: skip
+                    ok["elbow_ok"], q_star)  # fmt: skip
+
+
+def shoulder_postures(robot: RobotModel, elbow: np.ndarray, wrist: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(2, F, 3) shoulder angles [rad] of the postures reaching elbow and wrist (2, F, 3) [m], frame by frame.
+
+    The retargeter's upper-arm IK (:class:`services.retarget.upper_arm.UpperArmSolver`, warm-started
+    along the clip); frames where ``ok`` (2, F) is False keep the previous posture.
+    """
+    from services.retarget.upper_arm import UpperArmSolver
+
+    out = np.zeros((*elbow.shape[:2], ACTION_DIM))
+    for i, side in enumerate(SIDES):
+        solver = UpperArmSolver(robot, side, upper_arm_frame(robot.profile, side))
+        act = action_joints(robot, side)
+        for k in range(elbow.shape[1]):
+            if ok[i, k]:
+                solver(elbow[i, k], wrist[i, k])
+            out[i, k] = solver.q[act]
+    return out
 
 
 @dataclass
@@ -122,6 +150,9 @@ class RolloutConfig:
         gain, orientation_gain: K_p of eq. (2) [1/s] on position and orientation.
         eta: η of eq. (3) [1/s]. settle: first frame held this long [s] before recording.
         posture_gain: gate fallback: rest-posture pull [1/s] on the arm joints.
+        action_kind: "velocity" (the expert's label is ``-η ∇H``, eqs. 3-6) or "posture" (the label is
+            the operator's shoulder posture ``q*``, driven as ``q̇₀ = K (q* - q)``).
+        action_gain: K [1/s] of the posture kind.
     """
 
     rate: float = 50.0
@@ -131,6 +162,8 @@ class RolloutConfig:
     eta: float = DEFAULT_ETA
     settle: float = 1.0
     posture_gain: float = 2.0
+    action_kind: str = "velocity"
+    action_gain: float = POSTURE_ACTION_GAIN
 
 
 @dataclass
@@ -139,7 +172,8 @@ class Rollout:
 
     Attributes:
         S: (K, 2, 14) states. A: (K, 2, 3) expert labels. A_pi: (K, 2, 3) policy actions (zeros when the
-        expert drove). Z: (K, 2, 6) operator arm state. label_ok: (K, 2) expert label defined.
+        expert drove); both of the config's action kind. Z: (K, 2, 6) operator arm state.
+        label_ok: (K, 2) expert label defined.
         elbow_err, wrist_err: (K, 2) [m] robot elbow / wrist vs the references. gate: (K, 2).
     """
 
@@ -171,6 +205,8 @@ class ArmsModel:
 
         geo = [ArmGeometry.measure(robot, s) for s in SIDES]
         self.frames = [ArmFrame(g.centre.copy(), g.upper, g.fore) for g in geo]
+        #: (7,) left -> right joint signs of the mirror image (for mirrored demonstrations)
+        self.mirror = mirror_signs(robot)
 
 
 def rollout(
@@ -191,6 +227,9 @@ def rollout(
         raise ValueError(f"driver must be 'expert' or 'policy', got {driver!r}")
     if driver == "policy" and policy is None:
         raise ValueError("the policy driver needs a policy")
+    if cfg.action_kind not in ACTION_KINDS:
+        raise ValueError(f"action_kind must be one of {ACTION_KINDS}, got {cfg.action_kind!r}")
+    posture = cfg.action_kind == "posture"
     robot = arms.robot
     conf = Configuration(robot)
     q = robot.q_rest.copy()
@@ -217,7 +256,10 @@ def rollout(
         for i in range(2):
             p_t.append(clip.p[i, k] + (0.0 if settling else 1.0) * clip.v[i, k] * tau)
             S[i] = state(matrix_to_quat(clip.R[i, k]), p_t[i], q[arms.arm[i]], arms.Q_ref[i])
-            if clip.has_m[i, k]:
+            if posture:
+                A[i] = clip.q_star[i, k]
+                lab[i] = True
+            elif clip.has_m[i, k]:
                 arms.align[i].set_target(clip.R_m[i, k], check=False)
                 A[i] = np.clip(-cfg.eta * arms.align[i].gradient(conf)[arms.act[i]], -ACTION_LIMIT, ACTION_LIMIT)
                 lab[i] = True
@@ -225,7 +267,7 @@ def rollout(
         gate = np.zeros(2, bool)
         if driver == "policy":
             out = policy.act(S)
-            A_pi, gate = out.qd0, out.gate
+            A_pi, gate, qd0_pi = out.action, out.gate, out.qd0
         qd = np.zeros(robot.nq)
         for i in range(2):
             J = conf.get_frame_jacobian(wrist_names[i])[:, arms.arm[i]]
@@ -234,9 +276,9 @@ def rollout(
             b = ff + np.r_[cfg.gain * (p_t[i] - p), cfg.orientation_gain * pin.log3(clip.R[i, k] @ R.T)]
             qd0 = np.zeros(7)
             if driver == "expert":
-                qd0[:ACTION_DIM] = A[i]
+                qd0[:ACTION_DIM] = posture_action(A[i], q[arms.act[i]], cfg.action_gain) if posture else A[i]
             elif gate[i] or not use_gate:
-                qd0[:ACTION_DIM] = A_pi[i]
+                qd0[:ACTION_DIM] = qd0_pi[i]
             else:
                 qd0 = cfg.posture_gain * (robot.q_rest[arms.arm[i]] - q[arms.arm[i]])
             if not cfg.orientation_gain:

@@ -17,7 +17,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.posture.features import ACTION_DIM, ARM_STATE_DIM, DECODER_DIM, STATE_DIM
+from services.posture.features import (
+    ACTION_DIM,
+    ARM_STATE_DIM,
+    DECODER_DIM,
+    HAND_INPUTS,
+    STATE_DIM,
+    mirror_arm_state,
+    mirror_state,
+)
 from shared.targets import SIDES
 
 log = logging.getLogger("mimic.posture")
@@ -47,15 +55,19 @@ class TrainConfig:
         epochs: passes over the data. batch: minibatch size. lr: Adam step size.
         decoder_weight: weight of the decoder loss against eq. (7)'s action loss.
         seed: torch/numpy seed. threads: torch CPU threads.
+        hand_only: the encoder reads the hand pose (Q, p) only (the joint inputs are masked out and
+            their first-layer weights exported as zero): for the posture action kind, whose label
+            does not depend on where the robot's arm is.
     """
 
-    hidden: int = 64
+    hidden: int = 128
     epochs: int = 40
     batch: int = 256
     lr: float = 3e-3
     decoder_weight: float = 1.0
     seed: int = 0
     threads: int = 1
+    hand_only: bool = False
 
 
 @dataclass
@@ -77,6 +89,18 @@ class Dataset:
         """A new dataset with per-side arrays appended (D ← D ∪ D_E)."""
         return Dataset([np.r_[self.S[i], S[i]] for i in range(2)], [np.r_[self.A[i], A[i]] for i in range(2)],
                        [np.r_[self.Z[i], Z[i]] for i in range(2)])  # fmt: skip
+
+    def with_mirror(self, sign: np.ndarray) -> Dataset:
+        """Each arm's samples plus the other arm's reflected onto it (twice the data per arm).
+
+        Args:
+            sign: (7,) joint signs of :func:`.features.mirror_signs` (also applied to the actions,
+                which live on the first three, shoulder, joints).
+        """
+        S = [np.r_[self.S[i], mirror_state(self.S[1 - i], sign)] for i in range(2)]
+        A = [np.r_[self.A[i], self.A[1 - i] * sign[:ACTION_DIM]] for i in range(2)]
+        Z = [np.r_[self.Z[i], mirror_arm_state(self.Z[1 - i])] for i in range(2)]
+        return Dataset(S, A, Z)
 
 
 def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
@@ -141,6 +165,8 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
         nd_sd = torch.tensor(nd[1], dtype=torch.float32)
         na_mu = torch.tensor(na[0], dtype=torch.float32)
         na_sd = torch.tensor(na[1], dtype=torch.float32)
+        if cfg.hand_only:
+            T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
         gen = torch.Generator().manual_seed(cfg.seed + i)
         enc = _net(torch, STATE_DIM, cfg.hidden, ACTION_DIM)
         dec = _net(torch, DECODER_DIM, cfg.hidden, ARM_STATE_DIM)
@@ -168,6 +194,9 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
             curve.append((tot_a / n, tot_z / n))
             if progress is not None:
                 progress(side, epoch, curve[-1])
+        if cfg.hand_only:
+            with torch.no_grad():
+                enc[0].weight[:, HAND_INPUTS:] = 0.0  # exported as zero: the raw joints have no effect
         weights.update(_export(torch, f"{side}.enc", enc, ns, na))
         weights.update(_export(torch, f"{side}.dec", dec, nd, nz))
         report["sides"][side] = {

@@ -45,6 +45,15 @@ def policy_meta(robot: RobotModel, threshold: float) -> dict:
     }
 
 
-def write_random_policy(path: Path, robot: RobotModel, threshold: float = 1e3, seed: int = 0) -> Path:
-    """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0)."""
-    return save_policy(path, random_weights(np.random.default_rng(seed)), policy_meta(robot, threshold))
+def write_random_policy(
+    path: Path, robot: RobotModel, threshold: float = 1e3, seed: int = 0, posture_gain: float | None = None
+) -> Path:
+    """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0).
+
+    Args:
+        posture_gain: when given, a posture-kind policy (encoder output = shoulder posture) with this K.
+    """
+    meta = policy_meta(robot, threshold)
+    if posture_gain is not None:
+        meta.update(action_kind="posture", posture_gain=posture_gain)
+    return save_policy(path, random_weights(np.random.default_rng(seed)), meta)

@@ -49,6 +49,31 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
     np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-12)
 
 
+def test_posture_kind_learns_the_operators_shoulder_posture_from_the_hand_alone(smallest):
+    robot = build_robot_model(with_waist=False)
+    arms = ArmsModel(robot)
+    clip = prepare_clip(smallest[0], robot)
+    cfg = RolloutConfig(settle=0.5, action_kind="posture")
+    roll = rollout(arms, clip.slice(0, min(len(clip.t), 60)), "expert", None, cfg)
+    ok = roll.label_ok
+    # The expert's label is the operator's shoulder posture, and driving it pulls the shoulders onto it.
+    for i in range(2):
+        gap = np.abs(roll.A[ok[:, i], i][:, None, :] - clip.q_star[i][None, :60]).max(-1).min(1)
+        assert ok[:, i].sum() > 50 and gap.max() == 0.0  # every label is one of the clip's frames' q*
+    q_sh = roll.S[:, :, 7:10]
+    start = np.abs(q_sh[0] - roll.A[0]).mean()
+    assert np.abs(q_sh[-10:] - roll.A[-10:]).mean() < 0.5 * start
+    data = from_rollouts([roll]).with_mirror(arms.mirror)
+    w, _ = fit(data, TrainConfig(hidden=16, epochs=60, batch=64, seed=0, hand_only=True))
+    S = data.S[0][:20]
+    S2 = S.copy()
+    S2[:, 7:] += np.random.default_rng(0).normal(size=(20, 7))  # the arm elsewhere: same posture asked
+    np.testing.assert_allclose(mlp(_layers(w, "left.enc"), S), mlp(_layers(w, "left.enc"), S2), atol=1e-12)
+    pred = mlp(_layers(w, "left.enc"), data.S[0])
+    A = data.A[0]
+    assert 1 - ((pred - A) ** 2).sum() / ((A - A.mean(0)) ** 2).sum() > 0.5
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # ~1 min on an idle machine; over 5 min at load 30 (retargeting with the upper-arm IK)
 def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
