@@ -5,10 +5,11 @@ Frames are published from the test process at 10 kHz for a few seconds (the
 The frames come from a process of their own (a 10 kHz publisher in the observer's
 process would hold its GIL and stamp arrivals late). Newest wins: each service
 takes samples from a Rust-side ring (no GIL per sample, so nothing backs up in
-Zenoh or the kernel), retarget keeps a short queue and the solver and sim keep
-the newest message, so the end-to-end latency stays bounded and does not grow
-from the first to the last second; frames skipped in the ring show up as gaps in
-the publisher's numbering and those skipped in the queue as dropped.
+Zenoh or the kernel), retarget keeps a queue whose stale frames it skips and the
+solver and sim keep the newest message, so the end-to-end latency stays bounded
+and does not grow from the first to the last second; frames skipped in the ring
+show up as gaps in the publisher's numbering and those skipped in the mailboxes
+as dropped.
 """
 
 from __future__ import annotations
