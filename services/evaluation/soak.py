@@ -123,14 +123,14 @@ class FramePublisher:
         self.t0_ns[k] = t0
         self.sent = k + 1
 
-    def run(self, duration: float) -> None:
-        """Publish for ``duration`` [s] (blocking), paced on monotonic deadlines."""
+    def run(self, duration: float, first: int = 0) -> None:
+        """Publish frames ``first``, ``first`` + 1, ... for ``duration`` [s] (blocking), paced on monotonic time."""
         period = 1.0 / self.rate
         self.t_start = start = time.monotonic()
-        n = int(duration * self.rate)
-        k = 0
+        n = first + int(duration * self.rate)
+        k = first
         while k < n and not self._stop.is_set():
-            target = start + k * period
+            target = start + (k - first) * period
             now = time.monotonic()
             if now < target:
                 # Sleep, never spin: a busy-waiting publisher takes a core from the services.

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from shared.bus import bus_args, open_session
+from shared.bus import bus_args, open_session, sample_number
 from shared.keys import Keys
 from shared.messages import JointCommand, RobotState, ServiceStatus
 
@@ -26,6 +26,7 @@ class StateSample:
     holding: bool
     solver_id: str
     sim_time: float
+    number: int | None = None  # the sim publisher's sample number (None: not numbered)
 
 
 @dataclass
@@ -69,7 +70,10 @@ class Observer:
     def _on_state(self, s: zenoh.Sample) -> None:
         now_ns = time.time_ns()
         m = RobotState.decode(s.payload.to_bytes())
-        smp = StateSample(time.monotonic(), now_ns, m.hdr.seq, m.hdr.t0, m.q, m.holding, m.solver_id, m.sim_time)
+        num = sample_number(s)
+        smp = StateSample(
+            time.monotonic(), now_ns, m.hdr.seq, m.hdr.t0, m.q, m.holding, m.solver_id, m.sim_time, num and num[1]
+        )
         with self.lock:
             self.states.append(smp)
             self.first_state_ns.setdefault(m.hdr.seq, now_ns)
