@@ -453,6 +453,9 @@ class ServiceRunner:
         self._entities: list[Any] = []
         self._status_thread: threading.Thread | None = None
         self.session: zenoh.Session | None = None
+        #: Called right before each status is published (a service's own figures and state), so a
+        #: status never pairs fresh counts with a stale state.
+        self.before_status: Callable[[], None] | None = None
 
     # lifecycle
     def __enter__(self) -> ServiceRunner:
@@ -502,6 +505,11 @@ class ServiceRunner:
             pass
 
     def _publish_status(self) -> None:
+        if self.before_status is not None:
+            try:
+                self.before_status()
+            except Exception as exc:  # status must never take the service down
+                self.log.debug("status update failed: %s", exc)
         self._status_pub.put(self.status.snapshot().encode())
 
     def _status_loop(self) -> None:

@@ -196,6 +196,7 @@ def run(args, retargeter: Retargeter, save_calibration: Sequence[Path] = ()) -> 
     with ServiceRunner("retarget", args) as svc:
         node = RetargetNode(retargeter, svc, save_calibration)
         node.update_status()
+        svc.before_status = node.update_status
         svc.log.info(
             "retargeting %s -> %s, mode %s, calibration %s",
             svc.keys.mocap_frame,
@@ -203,6 +204,5 @@ def run(args, retargeter: Retargeter, save_calibration: Sequence[Path] = ()) -> 
             retargeter.config.mode,
             retargeter.calibration.source if retargeter.calibration else "auto (first rest frame)",
         )
-        while not svc.stop_event.wait(0.5):
-            node.update_status()
+        svc.wait()
     return 0
