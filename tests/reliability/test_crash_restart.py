@@ -20,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,10 @@ SOLVER_DT = 1.0 / 500.0  # mimic solve default rate
 STATE_VEL_TOL = 1.5 * VMAX
 #: The held servo target equals the last command; the joints sit within this of it [rad].
 SERVO_TOL = 0.05
+#: Hold settling bound [rad]: the velocity feed-forward shift (kv/kp * qd, see services/sim/sim_core.py)
+#: the servo target loses when commands stop, at vmax; kp, kv from the robot profile.
+_SERVO = tomllib.loads((REPO_ROOT / "models" / "g1_29dof.toml").read_text())["actuators"]
+HOLD_SETTLE_RAD = VMAX * _SERVO["kv"] / _SERVO["kp"]
 
 
 def test_kill9_each_service_and_restart(tmp_path):
@@ -62,8 +67,10 @@ def test_kill9_each_service_and_restart(tmp_path):
             if victim == "solver":
                 # Watchdog (100 ms of sim time) + one state period, with slack for a loaded machine.
                 assert r["hold_after_s"] is not None and r["hold_after_s"] < 0.4, ctx
-                # Holds still: a settling of the servo from the last (moving) command, then nothing.
-                assert r["hold_q_drift_rad"] < 0.05, ctx
+                # Holds still: a settling of the servo from the last (moving) command, then nothing. The
+                # settling is the PD tracking lag the joint had when commands stopped, at most
+                # vmax * kv / kp = 4 rad/s * 40 / 1000 = 0.16 rad (measured 0.050-0.057 at ~1.4 rad/s).
+                assert r["hold_q_drift_rad"] < HOLD_SETTLE_RAD, ctx
                 assert r["hold_q_drift_settled_rad"] is not None and r["hold_q_drift_settled_rad"] < 0.002, ctx
                 # The new solver starts from the measured pose: no jump in its commands.
                 assert r["new_solver_first_cmd_vs_state_rad"] < VMAX * SOLVER_DT + SERVO_TOL, ctx
