@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import time
 
 import msgpack
 
@@ -30,18 +31,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def alive_solvers(z, keys: Keys, wait: float = 0.5) -> list[str]:
     """Solver ids holding a liveliness token on the session now.
 
-    The get ends as soon as the router has answered for every token, so a generous ``wait`` [s]
-    costs nothing on a healthy stack and keeps a loaded machine from reporting "alive: none".
+    Asked again (within ``wait`` [s]) until the answer holds any token at all: the sim that
+    called us is alive, so an empty answer means this fresh session's query was not routed yet
+    (seen on a loaded machine as "alive: none" beside two live solvers), not an empty stack.
     """
-    found = set()
-    # The get ends by itself after ``wait``; every reply that came by then counts (breaking out on
-    # a clock of our own dropped replies already received when this process was slow to read them).
-    for reply in z.liveliness().get(keys.all_alive, timeout=wait):
-        if reply.ok is not None:
-            parsed = Keys.parse_alive(str(reply.ok.key_expr))
-            if parsed and parsed[0] == "solver":
-                found.add(parsed[1])
-    return sorted(found)
+    deadline = time.monotonic() + wait
+    while True:
+        tokens = [Keys.parse_alive(str(r.ok.key_expr)) for r in z.liveliness().get(keys.all_alive, timeout=wait)
+                  if r.ok is not None]  # fmt: skip
+        if tokens or time.monotonic() >= deadline:
+            return sorted({p[1] for p in tokens if p and p[0] == "solver"})
+        time.sleep(0.1)
 
 
 def main(args: argparse.Namespace) -> int:
