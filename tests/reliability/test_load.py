@@ -23,10 +23,10 @@ from tests.support.faults import PIPELINE, burst, running_stack
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 RATE = 10000.0
 DURATION = 3.5
-#: On this 2-core machine the worst one-second p99 over 6 quiet runs was 812 ms: the burst saturates
-#: both cores, so the figure is CPU scheduling, not queueing. Before the ring (Python callback per
-#: sample) samples backed up in TCP buffers and the p99 grew from 0.55 s to 1.6 s within 3.5 s.
-P99_BOUND_MS = 1500.0
+#: The burst saturates both cores (the publisher alone takes ~1), so single windows spike with CPU
+#: scheduling: one-second p99s of 215-1560 ms in quiet runs of this code. The bound only rules out the
+#: absurd; the trend check below is what tells bounded from queueing.
+P99_BOUND_MS = 2500.0
 
 
 def test_10khz_burst_latency_stays_bounded_and_drops_are_counted():
@@ -41,7 +41,9 @@ def test_10khz_burst_latency_stays_bounded_and_drops_are_counted():
     assert first is not None and last is not None and last["t_s"] >= DURATION - 2.5, ctx
     # Bounded, and not trending up: the last second is no worse than the first plus a fixed margin.
     assert max(w["p99"] for w in r["windows"] if "p99" in w) < P99_BOUND_MS, ctx
-    assert last["p50"] < first["p50"] + 1000.0, ctx
+    # Queueing shows as growth: the old callback path went from p50 245 ms in the first second to 965 ms
+    # in the last; this code's quiet runs: 413 -> 155, 279 -> 89, 258 -> 104, 281 -> 407 ms.
+    assert last["p50"] < 2.0 * first["p50"] + 300.0, ctx
     # Old frames are dropped and counted, at retarget (bounded queue) and downstream.
     d = r["dropped"]
     assert d["retarget/main"].get("dropped.frames", 0) > 0, ctx
