@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from test_rerun_logger import make_sequence
 
-from services.logger.cli import add_arguments, open_recording
+from services.logger.cli import add_arguments, configs, open_recording
 from services.logger.compact import compact
 from services.logger.rerun_logger import OPERATOR_RGB, RerunLogger
 from services.logger.robot_visual import RobotVisual
@@ -40,9 +40,10 @@ def _recording(path: Path, frames: int) -> Path:
     p = argparse.ArgumentParser()
     add_arguments(p)
     args = p.parse_args(["--rrd", str(path), "--session", "webviewer"])
-    rec = open_recording(args, path)
+    rc, lc = configs(args)
+    rec = open_recording(rc, lc.operator_offset, args.session, path)
     if frames:
-        lg = RerunLogger(rec, RobotVisual(args.robot), operator_offset=args.operator_offset)
+        lg = RerunLogger(rec, RobotVisual(args.robot), operator_offset=lc.operator_offset)
         lg.setup()
         for payload in make_sequence(frames):
             lg.step("mimic/webviewer/x", payload)
