@@ -106,13 +106,15 @@ class MinkPeer:
         status = "init"
         qd_all = np.zeros(conf.model.nv)
         if self.tracker.started:
+            tasks = [self.posture]
             for name, task in self.tasks.items():
                 s = self.tracker.sample(name, t + self.dt)
                 if s is None:
-                    continue
+                    continue  # no target yet (a clip whose marker set lacks it): mink would raise
                 T = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(s.R), s.p)
                 task.set_target(self.T_world_base @ T)
-            qd_all = mink.solve_ik(conf, [*self.tasks.values(), self.posture], self.dt, self.solver, limits=self.limits)
+                tasks.append(task)
+            qd_all = mink.solve_ik(conf, tasks, self.dt, self.solver, limits=self.limits)
             conf.integrate_inplace(qd_all, self.dt)
             status = "ok"
         q = conf.q[self.qpos_idx].copy()
