@@ -87,6 +87,26 @@ def rotation_errors(ref: dict, got: dict, ok: dict, mask: np.ndarray | None = No
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def frame_errors(trace: Trace, names) -> np.ndarray:
+    """Errors [m] of the robot at each frame's own instant against that frame's target.
+
+    The command of the tick before a frame's arrival tick is the pose for the arrival instant (each
+    command is for t + dt), and the frame's stamp lies within that tick: robot and operator at the
+    same time, without the extrapolation the tick errors are measured against. So this does not
+    depend on how the pipeline predicts between frames (velocity filter, horizon): the lag a viewer
+    sees between the operator's frames and the robot shows here.
+    """
+    out = []
+    idx = trace.frame_tick - 1
+    keep = idx >= 0
+    for n in names:
+        if n not in trace.frame_p or n not in trace.kin_p or not len(idx):
+            continue
+        sel = keep & trace.frame_ok[n]
+        out.append(np.linalg.norm(trace.kin_p[n][idx[sel]] - trace.frame_p[n][sel], axis=1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def limit_violations(trace: Trace, robot: RobotModel, tol: float = 1e-9) -> int:
     """Count of (tick, joint) pairs outside the position or velocity limits."""
     pos = (trace.q < robot.lower - tol) | (trace.q > robot.upper + tol)
@@ -121,6 +141,8 @@ def trace_metrics(
         "wrist_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, WRISTS)),
         "elbow_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, ELBOWS)),
         "wrist_rot_err_deg": _stats(rotation_errors(trace.ref_R, trace.kin_R, trace.ref_ok)),
+        "wrist_frame_err_cm": _stats(cm * frame_errors(trace, WRISTS)),
+        "elbow_frame_err_cm": _stats(cm * frame_errors(trace, ELBOWS)),
         "solve_ms": {
             "mean": float(trace.solve_ms.mean()),
             "p50": float(np.percentile(trace.solve_ms, 50)),

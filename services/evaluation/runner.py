@@ -58,6 +58,8 @@ class Trace:
         collide: (K,) bool, an arm in penetration (sim contacts; kinematic clearance < 0 without sim,
             on the clearance ticks only). clearance: (K,) smallest arm clearance [m] (NaN between
             clearance ticks). dt: control period [s].
+        frame_tick: (F,) index of the scored tick each frame arrived on; frame_p: target -> (F, 3) the
+            frame's own target position [m] (no extrapolation); frame_ok: target -> (F,) valid.
     """
 
     algo: str
@@ -77,6 +79,9 @@ class Trace:
     sim_R: dict[str, np.ndarray] = field(default_factory=dict)
     collide: np.ndarray | None = None
     clearance: np.ndarray | None = None
+    frame_tick: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    frame_p: dict[str, np.ndarray] = field(default_factory=dict)
+    frame_ok: dict[str, np.ndarray] = field(default_factory=dict)
     dt: float = 0.002
     counts: dict[str, int] = field(default_factory=dict)
 
@@ -130,6 +135,8 @@ def run_algorithm(
     fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
     rec = _Recorder(robot, core, simcore, reference, coll)
     for t, msg in _arrivals(targets, settle, dt):
+        if msg is not None and t >= settle:
+            rec.frame(msg)
         if msg is not None:
             reference.update(msg, t)
             if fed is not None:
@@ -203,6 +210,17 @@ class _Recorder:
         self.kin_R = {n: [] for n in WRISTS}
         self.sim_p = {n: [] for n in TARGET_NAMES}
         self.sim_R = {n: [] for n in WRISTS}
+        self.frame_tick: list[int] = []
+        self.frame_p = {n: [] for n in TARGET_NAMES}
+        self.frame_ok = {n: [] for n in TARGET_NAMES}
+
+    def frame(self, msg: TaskTargets) -> None:
+        """A frame arriving on the tick about to be recorded: its own targets, for the frame errors."""
+        self.frame_tick.append(len(self.rec["t"]))
+        for n in TARGET_NAMES:
+            tg = msg.targets.get(n)
+            self.frame_ok[n].append(tg is not None and tg.valid)
+            self.frame_p[n].append(tg.p if tg is not None else np.full(3, np.nan))
 
     def tick(self, t: float, settle: float, dt: float, cmd) -> None:
         """Record the command of tick ``t`` [s] (clip time ``t - settle``)."""
@@ -265,6 +283,9 @@ class _Recorder:
             sim_R=arr(self.sim_R),
             collide=rec["collide"].astype(bool) if self.coll is not None else None,
             clearance=rec["clear"].astype(float) if self.coll is not None else None,
+            frame_tick=np.asarray(self.frame_tick, dtype=int),
+            frame_p=arr(self.frame_p),
+            frame_ok=arr(self.frame_ok),
             dt=dt,
             counts=dict(self.core.counts),
         )

@@ -40,7 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--profile", action="append", default=[], help="also run the compose profile's services (shadow, live)"
     )
-    p.add_argument("--only", action="append", default=None, help="run only these services (plus the router)")
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        help="run only these services (plus the router): repeat it or give a comma list (--only solver,sim)",
+    )
     p.add_argument("--restart", action="store_true", help="restart crashed services with exponential backoff")
     p.add_argument("--clips", nargs="*", default=None, help="with --demo: play these clips instead of the bundled ones")
     p.add_argument("--rate", type=float, default=1.0, help="with --demo: playback speed factor")
@@ -84,6 +89,13 @@ def _demo_clips(run_dir: Path, stack: LocalStack) -> list[Path]:
     return clips
 
 
+def only_services(values: list[str] | None) -> list[str] | None:
+    """The ``--only`` service names: repeated flags and comma lists alike (None: every service)."""
+    if values is None:
+        return None
+    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
 def main(args: argparse.Namespace) -> int:
     session = args.session or ("demo" if args.demo else os.environ.get("MIMIC_SESSION", "default"))
     run_dir = REPO_ROOT / "runs"
@@ -114,7 +126,7 @@ def main(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 1
     try:
-        specs = select(stack.spec, args.profile, args.only)
+        specs = select(stack.spec, args.profile, only_services(args.only))
     except ValueError as exc:
         stack.close()
         log.error("%s", exc)

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+import urllib.parse
 from pathlib import Path
 
 from services.logger.config import LoggerConfig, RecordingConfig
+from services.logger.rerun_server import RerunServer
 from shared.bus import add_bus_args
 from shared.config import add_dataclass_arguments, config_from_args
 from shared.paths import unused_path
@@ -36,8 +38,15 @@ def configs(args: argparse.Namespace) -> tuple[RecordingConfig, LoggerConfig]:
     return config_from_args(RecordingConfig, args), config_from_args(LoggerConfig, args)
 
 
-def open_recording(rc: RecordingConfig, operator_offset: tuple[float, float, float], session: str, rrd: Path):
-    """Recording stream with its sinks (file, and optionally viewer/server) and the blueprint."""
+def open_recording(
+    rc: RecordingConfig,
+    operator_offset: tuple[float, float, float],
+    session: str,
+    rrd: Path,
+    server: RerunServer | None = None,
+):
+    """Recording stream with its sinks (file, and optionally a spawned viewer, ``server``, a remote viewer)
+    and the blueprint."""
     import rerun as rr
 
     from services.logger.rerun_logger import blueprint
@@ -52,25 +61,22 @@ def open_recording(rc: RecordingConfig, operator_offset: tuple[float, float, flo
     if rc.spawn:
         rr.spawn(port=rc.grpc_port, connect=False)
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{rc.grpc_port}/proxy"))
-    elif rc.serve:
-        sinks.append(rr.GrpcServerSink(bind_ip=rc.bind_host, port=rc.grpc_port))
+    elif server is not None:
+        sinks.append(rr.GrpcSink(server.sink_url))
     if rc.connect_viewer:
         sinks.append(rr.GrpcSink(rc.connect_viewer))
     bp = blueprint(operator_offset)
     rec.set_sinks(*sinks, default_blueprint=bp)
     rec.send_blueprint(bp)
-    if rc.serve and not rc.spawn:
-        url = f"rerun+http://{rc.advertise_host}:{rc.grpc_port}/proxy"
-        rr.serve_web_viewer(web_port=rc.web_port, open_browser=False, connect_to=url)
-        log.info("web viewer on http://%s:%d (data from %s)", rc.advertise_host, rc.web_port, url)
+    if server is not None:
+        url = urllib.parse.quote(f"rerun+http://{rc.advertise_host}:{rc.grpc_port}/proxy", safe="")
+        page = f"http://{rc.advertise_host}:{rc.web_port}/?url={url}"
+        log.info("web viewer: open %s (both ports listen on %s)", page, rc.bind_host)
     return rec
 
 
 def main(args: argparse.Namespace) -> int:
-    from services.logger.node import LoggerNode
-    from services.logger.rerun_logger import RerunLogger
     from services.logger.robot_visual import RobotVisual
-    from shared.bus import ServiceRunner
     from shared.robot.profile import ProfileError
     from shared.robot.wheeled import is_wheeled_profile
 
@@ -91,7 +97,27 @@ def main(args: argparse.Namespace) -> int:
     except (ProfileError, OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2
-    rec = open_recording(rc, lc.operator_offset, args.session, rrd)
+    server = None
+    if rc.serve and not rc.spawn:
+        try:
+            server = RerunServer(rc.bind_host, rc.grpc_port, rc.web_port).start()
+        except (OSError, RuntimeError) as exc:
+            log.error("--serve: %s", exc)
+            return 2
+    try:
+        return _record(args, rc, lc, rrd, visual, server)
+    finally:
+        if server is not None:
+            server.close()
+
+
+def _record(args, rc: RecordingConfig, lc: LoggerConfig, rrd: Path, visual, server: RerunServer | None) -> int:
+    """Log the session into ``rrd`` (and ``server``) until stopped; compact it after."""
+    from services.logger.node import LoggerNode
+    from services.logger.rerun_logger import RerunLogger
+    from shared.bus import ServiceRunner
+
+    rec = open_recording(rc, lc.operator_offset, args.session, rrd, server)
     logger = RerunLogger(rec, visual, lc.operator_offset, lc.robot_rate, lc.skeleton_rate, lc.follow)
     logger.setup()
     instance = rc.id or ("viewer" if rc.serve else "main")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -171,3 +172,21 @@ def test_the_live_ingest_mimic_up_starts_binds_loopback(tmp_path, zenoh_endpoint
         stack.start_all(["ingest"], timeout=120)
         binds = _udp_binds(port)
         assert binds == ["0100007F"], binds  # 127.0.0.1, little-endian hex; 00000000 would be 0.0.0.0
+
+
+def test_up_only_takes_repeated_flags_and_comma_lists_alike():
+    """`mimic up --only solver,sim` and `--only solver --only sim` pick the same services (plus the router);
+    an unknown name in a list is still named."""
+    from services.launcher.cli import add_arguments, only_services
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    stack = load_stack()
+    picked = [
+        [s.name for s in select(stack, [], only_services(p.parse_args(argv).only))]
+        for argv in (["--only", "solver,sim"], ["--only", "solver", "--only", " sim"])
+    ]
+    assert picked[0] == picked[1] and set(picked[0]) == {"zenoh", "sim", "solver"}, picked
+    assert only_services(None) is None
+    with pytest.raises(ValueError, match="unknown services \\['solvr'\\]"):
+        select(stack, [], only_services(["sim,solvr"]))

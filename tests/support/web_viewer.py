@@ -21,7 +21,6 @@ import io
 import json
 import os
 import shutil
-import signal
 import subprocess
 import tempfile
 import time
@@ -34,6 +33,7 @@ import numpy as np
 from PIL import Image
 from websockets.sync.client import connect
 
+from services.logger.rerun_server import end_group, rerun_binary
 from shared.bus import free_port
 
 #: Debian's package; `make test-browser` installs it when missing.
@@ -61,27 +61,6 @@ class ViewerError(AssertionError):
 def chromium_path() -> str | None:
     """Path of the Chromium binary, None when it is not installed."""
     return shutil.which(CHROMIUM)
-
-
-def _end_group(proc: subprocess.Popen, timeout: float = 10.0) -> None:
-    """Stop a process started with ``start_new_session=True`` and everything it started."""
-    if proc.poll() is not None:
-        return
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout)
-    except ProcessLookupError:
-        pass
-
-
-def _rerun_cli() -> str:
-    """The Rerun CLI binary bundled with rerun-sdk (not its Python wrapper, whose child would outlive it)."""
-    import rerun_cli
-
-    return str(Path(rerun_cli.__file__).parent / "rerun")
 
 
 class WebViewer:
@@ -120,7 +99,7 @@ class WebViewer:
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.t_start = time.monotonic()
         ports = ["--web-viewer-port", str(self.web_port), "--port", str(self.grpc_port)]
-        self._spawn([_rerun_cli(), "--serve-web", str(self.rrd), "--bind", "127.0.0.1", *ports], "rerun.log")
+        self._spawn([rerun_binary(), "--serve-web", str(self.rrd), "--bind", "127.0.0.1", *ports], "rerun.log")
         profile = self.workdir / "chromium-profile"
         window = f"--window-size={self.size[0]},{self.size[1]}"
         browser = chromium_path() or CHROMIUM
@@ -143,7 +122,7 @@ class WebViewer:
         except Exception:
             pass
         for p in reversed(self._procs):
-            _end_group(p)
+            end_group(p)
 
     def _log_tail(self, name: str, n: int = 5) -> str:
         try:
