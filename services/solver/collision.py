@@ -12,16 +12,16 @@ and not at all at ``d_s``; closer than ``d_s`` it must separate. The rows go to 
 ``G qd <= h``, hard at every priority level (``inequalities.Inequalities``); rows that no velocity
 of the step's box can break are dropped, so the QP keeps its box-only path on most ticks.
 
-Geometry: proxies fitted once at start-up to each link's collision mesh (its convex hull, as
-MuJoCo collides it), both containing the hull, so a proxy distance is never larger than the mesh
-distance: a capsule along the hull's longest axis (tight on forearms and wrists) and a polytope of
-66 face directions (tight on a boxy torso or head; :func:`link_proxy`). Each pair is the capsule of
-one link against the polytope of the other, the polytope for the link whose capsule fits worse.
-They are geoms of a MuJoCo model of the same URDF with the pairs as explicit contact pairs of
-margin d_i, so one ``mj_collision`` call finds every pair within d_i with its distance, normal and
-witness points (the meshes cost a GJK call of ~10-20 us per pair; the proxies about 1 us in C).
-Measured against ``mj_geomDistance`` on the meshes (``tests/solver/test_collision.py``, random
-poses): never more than the mesh distance, about 1 cm less on average within d_i.
+Geometry: a proxy fitted once at start-up to each link's collision mesh (its convex hull, as
+MuJoCo collides it): a polytope of 228 faces (the hull's 6 principal directions, 3 rings of 24
+square to them, 150 spread over the sphere), each touching the hull (:func:`link_proxy`). It holds
+the hull, so a proxy distance is never larger than the mesh distance; with a few hundred vertices
+instead of the meshes' 800-9500 it is cheap to collide. The proxies are geoms of a MuJoCo model of
+the same URDF (legs and visual meshes removed) with the link pairs as explicit contact pairs of
+margin d_i, so one ``mj_collision`` call a tick finds every pair within d_i with its distance,
+normal and witness points. Measured against ``mj_geomDistance`` on the meshes
+(``tests/solver/test_collision.py``, random poses): never more than the mesh distance, 0.2 cm less
+on average within d_i. (Capsules were tried first: 1.0 cm less on average, 2 cm at a forearm's end.)
 
 Kinematics and witness Jacobians (``mj_jac``) come from that model, kept for kinematics only: its
 controlled joints are set from the solver's q, the rest stay at the profile's rest pose (as in the
@@ -45,8 +45,10 @@ from shared.robot.profile import CollisionSpec
 #: Distances below this [m] have no reliable witness direction.
 DEGENERATE = 1e-9
 #: Directions of a link's polytope proxy besides its 6 principal ones: its faces' normals in the
-#: link frame (a Fibonacci lattice), about 25 degrees apart at 60.
-POLYTOPE_DIRECTIONS = 60
+#: link frame (a Fibonacci lattice), about 16 degrees apart at 150.
+POLYTOPE_DIRECTIONS = 150
+#: Faces in each ring square to one of the hull's principal axes (15 degrees apart at 24).
+RING_DIRECTIONS = 24
 
 
 @dataclass(slots=True)
@@ -64,25 +66,20 @@ class PairDistance:
 
 @dataclass(slots=True)
 class LinkProxy:
-    """A link's proxies in its frame, both containing its mesh's convex hull.
+    """A link's proxy in its frame: the polytope ``normals @ x <= offsets`` holding its mesh's convex hull.
 
     Attributes:
-        p0, p1: (3,) [m] the capsule's segment ends. r: its radius [m].
-        normals: (F, 3) unit face normals of the polytope ``normals @ x <= offsets``; offsets (F,) [m].
-        capsule_excess: the most [m] the capsule sticks out of the hull (over many directions).
+        normals: (F, 3) unit face normals. offsets: (F,) [m], each the hull's extent along its normal,
+            so every face touches the hull. centre: (3,) [m] a point inside (the hull vertices' mean).
     """
 
-    p0: np.ndarray
-    p1: np.ndarray
-    r: float
     normals: np.ndarray
     offsets: np.ndarray
-    capsule_excess: float
+    centre: np.ndarray
 
-    def polytope_vertices(self) -> np.ndarray:
+    def vertices(self) -> np.ndarray:
         """(k, 3) [m] the polytope's vertices (link frame)."""
-        inside = 0.5 * (self.p0 + self.p1)  # the capsule's axis runs inside the hull
-        hs = HalfspaceIntersection(np.hstack((self.normals, -self.offsets[:, None])), inside)
+        hs = HalfspaceIntersection(np.hstack((self.normals, -self.offsets[:, None])), self.centre)
         return hs.intersections
 
 
@@ -95,63 +92,31 @@ def _directions(n: int) -> np.ndarray:
     return np.stack((rxy * np.cos(phi), rxy * np.sin(phi), z), axis=1)
 
 
-def capsule_around(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The capsule (p0 (3,), p1 (3,), r [m]) along the longest principal direction of points (k, 3) covering them all.
-
-    Its axis passes through the middle of the points' cross-section box; its radius reaches the farthest
-    point from the axis; its segment is as short as that radius allows (a capsule is convex, so covering
-    a hull's vertices covers the hull).
-    """
-    centred = points - points.mean(axis=0)
-    axes = np.linalg.svd(centred, full_matrices=False)[2]
-    ext = np.ptp(centred @ axes.T, axis=0)
-    order = np.argsort(ext)[::-1]
-    axis, e1, e2 = axes[order[0]], axes[order[1]], axes[order[2]]
-    t, x, y = points @ axis, points @ e1, points @ e2
-    c = 0.5 * (x.min() + x.max()) * e1 + 0.5 * (y.min() + y.max()) * e2
-    rho = np.hypot(x - c @ e1, y - c @ e2)
-    r = float(rho.max())
-    # A point is within r of the segment [a, b] on the axis when a <= t + s and b >= t - s.
-    s = np.sqrt(np.maximum(r * r - rho * rho, 0.0))
-    a, b = float((t + s).min()), float((t - s).max())
-    if a > b:  # shorter than its radius: a sphere anywhere in [b, a] covers the points
-        a = b = 0.5 * (a + b)
-    return c + a * axis, c + b * axis, r
-
-
 def link_proxy(vertices: np.ndarray, directions: int = POLYTOPE_DIRECTIONS) -> LinkProxy:
-    """Capsule and polytope proxies of the convex hull of vertices (m, 3) [m] (the link frame)."""
+    """The polytope proxy of the convex hull of vertices (m, 3) [m] (the link frame): faces along the hull's
+    6 principal directions (exact on a box), rings square to each of them and ``directions`` more spread
+    over the sphere, each face touching the hull."""
     hull = vertices[ConvexHull(vertices).vertices]
-    p0, p1, r = capsule_around(hull)
-    axes = np.linalg.svd(hull - hull.mean(axis=0), full_matrices=False)[2]
-    normals = np.vstack((axes, -axes, _directions(directions)))
-    offsets = (hull @ normals.T).max(axis=0)
-    probe = _directions(400)
-    excess = float(((np.maximum(probe @ p0, probe @ p1) + r) - (probe @ hull.T).max(axis=1)).max())
-    return LinkProxy(p0, p1, r, normals, offsets, excess)
+    centre = hull.mean(axis=0)
+    axes = np.linalg.svd(hull - centre, full_matrices=False)[2]
+    # A face tilted from a long side reaches out by the length times the tilt: rings of faces square to
+    # each principal axis keep the sides of elongated links tight.
+    phi = np.linspace(0.0, 2 * np.pi, RING_DIRECTIONS, endpoint=False)[:, None]
+    rings = [np.cos(phi) * axes[(k + 1) % 3] + np.sin(phi) * axes[(k + 2) % 3] for k in range(3)]
+    normals = np.vstack((axes, -axes, *rings, _directions(directions)))
+    return LinkProxy(normals, (hull @ normals.T).max(axis=0), centre)
 
 
-def add_proxy_geoms(mjspec: mujoco.MjSpec, body: str, proxy: LinkProxy) -> tuple[str, str]:
-    """Add a link's proxies to its body as massless, non-colliding geoms (only explicit pairs use them).
-
-    Returns the names of the capsule geom (a sphere when its segment is empty) and of the polytope geom.
-    """
-    b = mjspec.body(body)
-    cap = b.add_geom()
-    cap.name, cap.density, cap.contype, cap.conaffinity = f"capsule:{body}", 0.0, 0, 0
-    if np.linalg.norm(proxy.p1 - proxy.p0) > 1e-6:
-        cap.type = mujoco.mjtGeom.mjGEOM_CAPSULE
-        cap.fromto = np.concatenate((proxy.p0, proxy.p1))
-    else:
-        cap.type, cap.pos = mujoco.mjtGeom.mjGEOM_SPHERE, proxy.p0
-    cap.size = [proxy.r, 0.0, 0.0]
+def add_proxy_geom(mjspec: mujoco.MjSpec, body: str, proxy: LinkProxy) -> str:
+    """Add a link's polytope to its body as a massless, non-colliding mesh geom (only explicit pairs use it);
+    returns the geom's name."""
     mesh = mjspec.add_mesh()
     mesh.name = f"polytope:{body}"
-    mesh.uservert = proxy.polytope_vertices().ravel()
-    poly = b.add_geom()
-    poly.name, poly.density, poly.contype, poly.conaffinity = f"polytope:{body}", 0.0, 0, 0
-    poly.type, poly.meshname = mujoco.mjtGeom.mjGEOM_MESH, mesh.name
-    return cap.name, poly.name
+    mesh.uservert = proxy.vertices().ravel()
+    geom = mjspec.body(body).add_geom()
+    geom.name, geom.density, geom.contype, geom.conaffinity = mesh.name, 0.0, 0, 0
+    geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_MESH, mesh.name
+    return geom.name
 
 
 def proxy_contacts(
@@ -167,7 +132,7 @@ def proxy_contacts(
     ncon = data.ncon
     con = data.contact
     dist = con.dist[:ncon]
-    if ncon > 1:  # a capsule against a mesh may give two contacts: keep each pair's closest (few: plain Python)
+    if ncon > 1:  # a pair may give several contacts: keep each pair's closest (few: plain Python)
         dl, best = dist.tolist(), {}
         for i, (g1, g2) in enumerate(con.geom[:ncon].tolist()):
             j = best.get((g1, g2))
@@ -205,6 +170,7 @@ class SelfCollisionAvoidance:
             g.name = g.name or f"mesh{i}"
         m = self.model = mjspec.compile()
         self.data = mujoco.MjData(m)
+        self.joint_names = tuple(robot.joint_names)
         self.qpos_idx = np.array([m.jnt_qposadr[m.joint(n).id] for n in robot.joint_names])
         self.dof_idx = np.array([m.jnt_dofadr[m.joint(n).id] for n in robot.joint_names])
         for j in range(m.njnt):  # every joint at rest, as in the reduced Pinocchio model
@@ -243,19 +209,15 @@ class SelfCollisionAvoidance:
         }
         #: (P, 2) link index pairs, sorted
         self.link_pairs = np.array(sorted(link_pairs), dtype=int).reshape(-1, 2)
-        # Each pair is the capsule of one link against the polytope of the other: the polytope for the
-        # link its capsule fits worse (a boxy torso), the capsule for the elongated one (a forearm).
-        excess = np.array([self.proxies[n].capsule_excess for n in self.links])
-        a, b = self.link_pairs.T
-        self._poly_is_a = excess[a] >= excess[b]
         self._build_proxy_model(mjspec, spec.influence_distance)
         self.d_s = spec.safety_distance
         self.d_i = spec.influence_distance
         self.xi = spec.damper_speed
         self._com_ready = False
-        self._jac_a = np.zeros((3, m.nv))
-        self._jac_b = np.zeros((3, m.nv))
-        self._jacs = np.zeros((2, 8, 3, m.nv))  # witness Jacobians of up to 8 rows (grown on demand)
+        nv = self.model.nv  # the proxy model's (legs removed)
+        self._jac_a = np.zeros((3, nv))
+        self._jac_b = np.zeros((3, nv))
+        self._jacs = np.zeros((2, 8, 3, nv))  # witness Jacobians of up to 8 rows (grown on demand)
         self._fromto = np.zeros(6)
         #: pair distances behind the rows of the last ``rows`` call (row i <-> close[i]), closest first
         self.close: list[PairDistance] = []
@@ -283,21 +245,35 @@ class SelfCollisionAvoidance:
         with its distance, normal and witness points; the meshes stop colliding (they stay as the
         reference, ``mesh_distance``). The proxies weigh nothing: the model is for kinematics only.
         """
-        for g in mjspec.geoms:
-            g.contype = g.conaffinity = 0
-        names = {n: add_proxy_geoms(mjspec, n, self.proxies[n]) for n in self.links}
-        for k, (a, b) in enumerate(self.link_pairs):
-            la, lb = self.links[a], self.links[b]
+        # Keep only what the proxies need: the pairs' links and their ancestors (not the legs), no other geoms.
+        keep = set()
+        for n in self.links:
+            b = mjspec.body(n)
+            while b is not None and b.name not in keep and b.name != "world":
+                keep.add(b.name)
+                b = b.parent
+        for b in [b for b in mjspec.bodies if b.name not in keep and b.name != "world"]:
+            if b.parent is not None and b.parent.name in keep | {"world"}:
+                mjspec.delete(b)  # with its subtree
+        for g in list(mjspec.geoms):
+            if g.contype == 0 and g.conaffinity == 0:
+                mjspec.delete(g)  # a visual mesh
+            else:
+                g.contype = g.conaffinity = 0
+        names = {n: add_proxy_geom(mjspec, n, self.proxies[n]) for n in self.links}
+        for a, b in self.link_pairs:
             pair = mjspec.add_pair()
-            (cap_a, poly_a), (cap_b, poly_b) = names[la], names[lb]
-            pair.geomname1, pair.geomname2 = (poly_a, cap_b) if self._poly_is_a[k] else (cap_a, poly_b)
+            pair.geomname1, pair.geomname2 = names[self.links[a]], names[self.links[b]]
             pair.margin = margin
-        qpos = self.data.qpos.copy()
+        rest = {self.model.joint(j).name: self.data.qpos[self.model.jnt_qposadr[j]] for j in range(self.model.njnt)}
         mesh_names = {n: [self.model.geom(g).name for g in ids] for n, ids in self.link_geoms.items()}
-        self.model = mjspec.compile()
-        self.data = mujoco.MjData(self.model)
-        self.data.qpos[:] = qpos
-        mujoco.mj_kinematics(self.model, self.data)
+        m = self.model = mjspec.compile()
+        self.data = mujoco.MjData(m)
+        for j in range(m.njnt):
+            self.data.qpos[m.jnt_qposadr[j]] = rest[m.joint(j).name]
+        self.qpos_idx = np.array([m.jnt_qposadr[m.joint(n).id] for n in self.joint_names])
+        self.dof_idx = np.array([m.jnt_dofadr[m.joint(n).id] for n in self.joint_names])
+        mujoco.mj_kinematics(m, self.data)
         self.link_geoms = {n: [self.model.geom(g).id for g in names] for n, names in mesh_names.items()}
 
     def set_q(self, q: np.ndarray) -> None:
@@ -373,7 +349,7 @@ class SelfCollisionAvoidance:
 
     def mesh_distance(self, link_a: str, link_b: str, dmax: float = 1.0) -> float:
         """Signed distance [m] of two links' collision meshes (MuJoCo ``mj_geomDistance`` on their convex
-        hulls) at the current kinematics, capped at dmax: the reference the capsules stand in for."""
+        hulls) at the current kinematics, capped at dmax: the reference the proxies stand in for."""
         best = dmax
         for ga in self.link_geoms[link_a]:
             for gb in self.link_geoms[link_b]:
