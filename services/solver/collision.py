@@ -122,30 +122,38 @@ def add_proxy_geom(mjspec: mujoco.MjSpec, body: str, proxy: LinkProxy) -> str:
 def proxy_contacts(
     model: mujoco.MjModel, data: mujoco.MjData
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[list[int]]]:
-    """The explicit pairs within their margin at the current kinematics (``mj_collision``), closest first.
+    """The explicit pairs within their margin at the current kinematics, closest first.
+
+    ``mj_collision`` finds the pairs (bounding spheres, then the narrow phase, in C); two polytopes
+    face to face give several contacts spread over the overlap, each off the true distance by up to
+    a millimetre, so each pair found is measured again with ``mj_geomDistance``: its distance and
+    witness points (the nearest points, whose line is the distance's gradient direction).
 
     Returns:
-        (d (k,) [m], normal (k, 3) unit from the first geom to the second, witness points p1, p2 (k, 3) [m]
-        on each, [[body 1, body 2]] * k); world frame.
+        (d (k,) [m], normal (k, 3) unit along which d grows, from the first geom to the second, witness
+        points p1, p2 (k, 3) [m] on each, [[body 1, body 2]] * k); world frame.
     """
     mujoco.mj_collision(model, data)
     ncon = data.ncon
-    con = data.contact
-    dist = con.dist[:ncon]
-    if ncon > 1:  # a pair may give several contacts: keep each pair's closest (few: plain Python)
-        dl, best = dist.tolist(), {}
-        for i, (g1, g2) in enumerate(con.geom[:ncon].tolist()):
-            j = best.get((g1, g2))
-            if j is None or dl[i] < dl[j]:
-                best[g1, g2] = i
-        sel = sorted(best.values(), key=dl.__getitem__)
-    else:
-        sel = list(range(ncon))
-    dist = dist[sel]
-    normal = con.frame[sel, :3]  # unit, from geom 1 to geom 2
-    half = (0.5 * dist)[:, None] * normal
-    pos = con.pos[sel]  # midway between the surfaces
-    return dist, normal, pos - half, pos + half, model.geom_bodyid[con.geom[sel]].tolist()
+    pairs = dict.fromkeys(map(tuple, data.contact.geom[:ncon].tolist()))  # unique, in order
+    k = len(pairs)
+    dist, p1, p2, normal = np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+    ft = np.empty(6)
+    margin = float(model.pair_margin[0]) if model.npair else 1.0
+    for i, (g1, g2) in enumerate(pairs):
+        dist[i] = mujoco.mj_geomDistance(model, data, g1, g2, margin + 0.01, ft)
+        p1[i], p2[i] = ft[:3], ft[3:]
+        v = ft[3:] - ft[:3]
+        nv = float(np.sqrt(v @ v))
+        if nv > DEGENERATE and abs(dist[i]) > DEGENERATE:
+            normal[i] = v * (np.sign(dist[i]) / nv)  # p2 - p1 = d n: it points back when they overlap
+        else:  # touching exactly: along the line between the geoms' centres
+            c = data.geom_xpos[g2] - data.geom_xpos[g1]
+            normal[i] = c / max(float(np.sqrt(c @ c)), DEGENERATE)
+    order = np.argsort(dist, kind="stable")
+    order = order[dist[order] < margin] if k else order  # the narrow phase's margin is a little generous
+    bodies = model.geom_bodyid[np.array(list(pairs), dtype=int).reshape(-1, 2)[order]].tolist()
+    return dist[order], normal[order], p1[order], p2[order], bodies
 
 
 class SelfCollisionAvoidance:
