@@ -7,6 +7,7 @@ import json
 import logging
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from tqdm import tqdm
@@ -241,12 +242,8 @@ def _settings_json(
         "mapping": retarget["mode"],
         "retarget": retarget,
         "wqp_weights": list(wqp_weights) if wqp_weights else "default (1.0, 0.3, 1.0)",
-        "solver": {
-            "wrist_orientation_level": SolverConfig(**solver).wrist_orientation_level,
-            "gain": SolverConfig().gain,
-            "orientation_gain": SolverConfig().orientation_gain,
-            "damping": list(SolverConfig().damping),
-        },
+        # every SolverConfig field the runs used (the shipped defaults unless a flag changed one)
+        "solver": asdict(SolverConfig(**solver)),
         "dof": dof,
         "wrist_only": getattr(args, "wrist_only", False),
         "posture_policy": getattr(args, "posture_policy", None),

@@ -32,6 +32,7 @@ import numpy as np
 
 from services.solver.base import Solution
 from services.solver.bounds import JointBounds
+from services.solver.centring import RangeCentringTask
 from services.solver.collision import SelfCollisionAvoidance
 from services.solver.inequalities import Inequalities
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
@@ -118,8 +119,19 @@ class SolverConfig:
         recovery: lead an arm out of a lock-up (elbow far off while its wrist is tracked) through a
             position-level IK posture, in the wrists' null space (``recovery.LockupRecovery``); strict
             hierarchies only (hqp-nullspace, hqp-original), the others have no level to put it on.
-            Off by default: it removes the wave-left-hand lock-up (elbow 29.6 -> 7.4 cm max) but on
-            byebye_normal its detours raise the elbow max from 3.6 to 15.4 cm (h12s notes).
+            Off by default: the range centring below keeps the arm out of the lock-up in the first place,
+            and the recovery's detours cost accuracy where nothing is locked (byebye_normal elbow mean
+            0.98 -> 2.3 cm, guide_normal 0.44 -> 4.7 cm: it also fires on the start-up transient).
+        range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
+            stops on level 2, beside the elbows (``centring.RangeCentringTask``), strict hierarchies only
+            (hqp-nullspace, hqp-original); 0 = off. It removes the wave-left-hand lock-up (elbow mean /
+            max 2.23 / 29.7 -> 0.92 / 3.9 cm); byebye_normal 0.975 / 4.40 -> 0.977 / 4.41, guide_normal
+            unchanged (``mimic eval``, h12l notes).
+        range_centring_band: fraction of each joint's range, from each stop, where the centring acts
+            (its weight grows quadratically from 0 at the band's edge to the cost at the stop).
+        range_centring_gain: gain [1/s] of the centring's pull back to the band's edge. With 5 (the
+            posture gain) byebye_normal's elbow mean rose 0.975 -> 1.10 cm and the wave's stayed
+            1.00; 20 keeps byebye at 0.977 and the wave at 0.92.
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``: capsule/polytope proxies of the meshes, one
             ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
@@ -157,6 +169,9 @@ class SolverConfig:
     self_collision: bool = True
     elbow_orientation_cost: float = 0.3
     recovery: bool = False
+    range_centring_cost: float = 3.0
+    range_centring_band: float = 0.25
+    range_centring_gain: float = 20.0
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     mimicry_eta: float = 10.0
@@ -274,6 +289,15 @@ class SolverCore:
                 self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
             else:
                 self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]
+        # Joint-range centring beside the elbows (``centring``), strict hierarchies only: their level 3 has
+        # no freedom left to keep the waist and shoulders out of their stops, where the arm then locks up.
+        # The weighted QP's posture term always acts (and a centring row there trades against the wrists:
+        # run_happy's wqp wrist mean rose 2.45 -> 2.85 cm with it).
+        self.centring_task = RangeCentringTask(
+            robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain
+        )
+        if cfg.range_centring_cost > 0 and self.centring_task.dim and cfg.algo in STRICT_ALGORITHMS:
+            self.levels = [self.levels[0], [*self.levels[1], self.centring_task], *self.levels[2:]]
         self._setup_posture(robot, cfg, gain)
         self._position_tasks = list(self.wrist_tasks)
 
@@ -461,6 +485,7 @@ class SolverCore:
         held = self._set_targets(t)
         self._shape_gains()
         levels = self._levels_for(self.wrist_only)
+        self.centring_task.update(self.q_raw)
         if self.recovery is not None and self.recovery.update(
             self.configuration, self.wrist_tasks, self.elbow_tasks, t
         ):
