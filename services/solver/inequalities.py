@@ -48,6 +48,11 @@ class Inequalities:
             least = np.minimum(self.G * lb, self.G * ub).sum(axis=1) + slack
             np.maximum(self.h, least, out=self.h)
 
+    def binding(self, lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
+        """(p,) bool: the rows some velocity of the box ``[lb, ub]`` (n,) breaks; the others add nothing to the box."""
+        most = np.maximum(self.G * lb, self.G * ub).sum(axis=1)
+        return most > self.h
+
     def relax_to(self, x0: np.ndarray, slack: float = 1e-6) -> None:
         """Raise each ``h_i`` to at least ``G_i x0 + slack`` (in place), so that x0 (n,) meets every row.
 
