@@ -133,14 +133,14 @@ class SolverConfig:
             posture gain) byebye_normal's elbow mean rose 0.975 -> 1.10 cm and the wave's stayed
             1.00; 20 keeps byebye at 0.977 and the wave at 0.92.
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
-            every level (``collision.SelfCollisionAvoidance``: capsule/polytope proxies of the meshes, one
+            every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
             ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
             so most gesture ticks keep the box-only QP); off, or a profile without the table, leaves only
             the joint limits. On: with the MuJoCo sim on run_happy, dash_active, kick_normal and
             wave-left-hand masculine, the sim's arm self-collision steps go 466/23/1904/78 -> 0 (hqp and
-            wqp), min clearance >= 1.8 cm; gesture errors unchanged. Cost, CPU time on this shared
-            2-core box (load ~4): 0.25-0.41 ms p50 a tick for the rows (0.45-0.72 ms with the previous
-            mesh GJK version), on 1.1-1.5 ms ticks (h12c notes).
+            wqp), min clearance >= 1.6 cm; gesture errors unchanged. Cost, CPU time on a shared 2-core
+            box: about 0.25 ms p50 a tick for the distances and rows (as the mesh version it replaces),
+            but rows reach the QP on 3.5-60 % of ticks instead of 82-91 % (h12c notes).
     """
 
     algo: str = "hqp-nullspace"
