@@ -21,6 +21,8 @@ tests. With a constant-velocity raw trajectory the smoother follows it exactly.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from services.solver.bounds import JointBounds
@@ -126,6 +128,20 @@ class QuinticSmoother:
         s = self.dt if s is None else s
         if not 0.0 < s < self.T:
             raise ValueError(f"step {s} s must be in (0, {self.T}) s")
+        # A late tick (s up to 2 nominal ticks) is advanced in sub-steps of at most one tick: the limits
+        # hold at every sub-step, as for on-time ticks. One long step could leave no segment end that
+        # respects them all (a joint at its speed cap, its braking bound shrinking with the step) and
+        # take the C2-breaking clamp: 7 clamps over the unsafe-target cases at a steady 4 ms, 0 at 2 ms.
+        n = max(1, math.ceil(s / self.dt - 1e-9))
+        clamped = limited = 0
+        for _ in range(n):
+            clamped = max(clamped, self._advance(q_raw, qd_raw, s / n))
+            limited = max(limited, self.limited)
+        self.limited = limited
+        return clamped
+
+    def _advance(self, q_raw: np.ndarray, qd_raw: np.ndarray, s: float) -> int:
+        """One step of s [s] (at most a nominal tick) towards the raw state; returns the joints clamped."""
         S = self._S
         K = self.propagator(s)
         # Aim at where the raw trajectory will be at the end of the horizon if its velocity holds.

@@ -152,6 +152,25 @@ def test_solver_core_commands_stay_within_limits(robot, algo, case):
         assert statuses["infeasible"] > 0, dict(statuses)
 
 
+def test_late_ticks_keep_the_limits_without_the_last_clamp(robot):
+    """Every tick late (a steady 2-tick step, the longest a tick integrates), through all the unsafe
+    cases: the smoother advances in sub-steps of one tick, so it never needs the C2-breaking clamp
+    (one long step did: 7 clamps here), and the commands stay within the limits over wall time."""
+    core = SolverCore(robot, SolverConfig(algo="hqp-nullspace", qp="daqp"))
+    core.reset(robot.q_rest)
+    step = 2.0 * core.dt
+    check = SafetyCheck(robot, step, core.q_out)
+    t, seq = 0.0, 0
+    for spec in unsafe_cases(robot).values():
+        for k in range(N_TICKS):
+            cmd = core.step(make_targets(seq, targets_at(spec, k)), None, t)
+            check.add(cmd.q, cmd.qd)
+            t += step
+            seq += 1
+    check.assert_safe("late ticks")
+    assert core.counts["safety_clamps"] == 0, core.counts
+
+
 def test_infeasible_commands_carry_a_reason(robot):
     core = SolverCore(robot, SolverConfig(algo="wqp", qp="daqp"))
     core.reset(robot.q_rest)

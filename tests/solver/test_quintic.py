@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -43,14 +45,27 @@ def test_follows_constant_velocity_without_lag():
 
 
 def _run_segments(sm, raw, steps):
-    """Step through raw (q, qd) inputs with step lengths ``steps``; per step, the state before, the
-    segment end used and the state after."""
+    """Step through raw (q, qd) inputs with step lengths ``steps``; per segment, the state before, the
+    segment end used and the state after.
+
+    A step longer than the nominal tick is taken by the smoother in sub-steps of at most a tick (the
+    limits hold at each): a copy stepped that way by hand must land on the same state, and its pieces
+    are the segments recorded.
+    """
     out = []
     for (q, qd), s in zip(raw, steps):
-        before = (sm.p.copy(), sm.v.copy(), sm.a.copy())
+        n = max(1, math.ceil(s / sm.dt - 1e-9))
+        twin = QuinticSmoother(len(sm.p), sm.dt, round(sm.T / sm.dt), sm.limits)
+        twin.reset(sm.p, sm.v)
+        twin.a[:] = sm.a
         clamped = sm.step(q, qd, s)
-        p1, v1 = sm.segment_end
-        out.append((before, (p1.copy(), v1.copy()), (sm.p.copy(), sm.v.copy(), sm.a.copy()), s, clamped))
+        for _ in range(n):
+            before = (twin.p.copy(), twin.v.copy(), twin.a.copy())
+            twin.step(q, qd, s / n)
+            p1, v1 = twin.segment_end
+            out.append((before, (p1.copy(), v1.copy()), (twin.p.copy(), twin.v.copy(), twin.a.copy()), s / n, clamped))
+        for got, want in zip((sm.p, sm.v, sm.a), (twin.p, twin.v, twin.a)):
+            np.testing.assert_array_equal(got, want)
     return out
 
 
