@@ -135,9 +135,9 @@ def run_algorithm(
     fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
     rec = _Recorder(robot, core, simcore, reference, coll)
     for t, msg in _arrivals(targets, settle, dt):
-        if msg is not None and t >= settle:
-            rec.frame(msg)
         if msg is not None:
+            if t >= settle:
+                rec.frame(msg)
             reference.update(msg, t)
             if fed is not None:
                 msg = fed.get(id(msg)) or wrist_only_targets([msg])[0]

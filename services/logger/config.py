@@ -67,7 +67,7 @@ class RecordingConfig:
         serve: also serve gRPC + the web viewer for a remote browser.
         grpc_port: gRPC port for serve / spawn.
         web_port: web viewer port for serve.
-        bind_host: interface the serve gRPC server (the recording's data) listens on.
+        bind_host: interface the serve gRPC server (the recording's data) and web viewer listen on.
         advertise_host: host name the browser uses to reach the gRPC server (serve).
         connect_viewer: stream to a running viewer (rerun+http://...).
     """
@@ -108,8 +108,9 @@ class RecordingConfig:
         default="127.0.0.1",
         metadata={
             "cli": {
-                "help": "interface the --serve gRPC server (the recording's data) listens on; it is unauthenticated, "
-                "so loopback unless asked (0.0.0.0: every interface, for a browser on another machine)"
+                "help": "interface the --serve servers (gRPC, the recording's data; HTTP, the web viewer) listen on; "
+                "they are unauthenticated, so loopback unless asked (0.0.0.0: every interface, for a browser on "
+                "another machine)"
             }
         },
     )

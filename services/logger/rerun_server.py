@@ -91,7 +91,9 @@ class RerunServer:
             if self.proc.poll() is not None:
                 self._out.seek(0)
                 out = self._out.read().decode(errors="replace").strip()
-                raise RuntimeError(f"rerun --serve-web exited with {self.proc.returncode}: {out[-400:]}")
+                code = self.proc.returncode
+                self.close()
+                raise RuntimeError(f"rerun --serve-web exited with {code}: {out[-400:]}")
             try:
                 with socket.create_connection((self.local_host, self.grpc_port), timeout=0.5):
                     break

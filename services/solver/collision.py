@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from services.solver.inequalities import Inequalities
-from shared.robot.mujoco_model import _urdf_for_mujoco
+from shared.robot.mujoco_model import urdf_for_mujoco
 from shared.robot.pinocchio_model import RobotModel
 from shared.robot.profile import CollisionSpec
 
@@ -173,17 +173,12 @@ class SelfCollisionAvoidance:
             raise ValueError(f"robot profile {robot.profile.name} has no [collision] table")
         self.spec = spec
         prof = robot.profile
-        mjspec = mujoco.MjSpec.from_string(_urdf_for_mujoco(prof))
+        mjspec = mujoco.MjSpec.from_string(urdf_for_mujoco(prof))
         for i, g in enumerate(mjspec.geoms):
             g.name = g.name or f"mesh{i}"
-        m = self.model = mjspec.compile()
-        self.data = mujoco.MjData(m)
         self.joint_names = tuple(robot.joint_names)
-        self.qpos_idx = np.array([m.jnt_qposadr[m.joint(n).id] for n in robot.joint_names])
-        self.dof_idx = np.array([m.jnt_dofadr[m.joint(n).id] for n in robot.joint_names])
-        for j in range(m.njnt):  # every joint at rest, as in the reduced Pinocchio model
-            self.data.qpos[m.jnt_qposadr[j]] = prof.rest.get(m.joint(j).name, 0.0)
-        mujoco.mj_kinematics(m, self.data)
+        # every joint at rest, as in the reduced Pinocchio model
+        m = self._install(mjspec.compile(), lambda name: prof.rest.get(name, 0.0))
         collides = (m.geom_contype != 0) | (m.geom_conaffinity != 0)
         links: dict[str, list[int]] = {}  # link name -> its collision geoms
         groups: dict[str, list[str]] = {}
@@ -275,14 +270,19 @@ class SelfCollisionAvoidance:
             pair.margin = margin
         rest = {self.model.joint(j).name: self.data.qpos[self.model.jnt_qposadr[j]] for j in range(self.model.njnt)}
         mesh_names = {n: [self.model.geom(g).name for g in ids] for n, ids in self.link_geoms.items()}
-        m = self.model = mjspec.compile()
-        self.data = mujoco.MjData(m)
+        self._install(mjspec.compile(), rest.__getitem__)
+        self.link_geoms = {n: [self.model.geom(g).id for g in names] for n, names in mesh_names.items()}
+
+    def _install(self, m: mujoco.MjModel, rest) -> mujoco.MjModel:
+        """Use model ``m``: its data at the pose ``rest(joint name) -> q`` [rad], kinematics done, and the
+        solver joints' qpos/dof addresses in it."""
+        self.model, self.data = m, mujoco.MjData(m)
         for j in range(m.njnt):
-            self.data.qpos[m.jnt_qposadr[j]] = rest[m.joint(j).name]
+            self.data.qpos[m.jnt_qposadr[j]] = rest(m.joint(j).name)
         self.qpos_idx = np.array([m.jnt_qposadr[m.joint(n).id] for n in self.joint_names])
         self.dof_idx = np.array([m.jnt_dofadr[m.joint(n).id] for n in self.joint_names])
         mujoco.mj_kinematics(m, self.data)
-        self.link_geoms = {n: [self.model.geom(g).id for g in names] for n, names in mesh_names.items()}
+        return m
 
     def set_q(self, q: np.ndarray) -> None:
         """Kinematics of the MuJoCo model at the solver's q (n,) [rad]."""

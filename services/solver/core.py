@@ -297,10 +297,12 @@ class SolverCore:
         # no freedom left to keep the waist and shoulders out of their stops, where the arm then locks up.
         # The weighted QP's posture term always acts (and a centring row there trades against the wrists:
         # run_happy's wqp wrist mean rose 2.45 -> 2.85 cm with it).
-        self.centring_task = RangeCentringTask(
-            robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain
+        centring = RangeCentringTask(robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain)
+        #: the centring task when a level holds it (its weights follow q each tick), else None
+        self.centring_task = (
+            centring if cfg.range_centring_cost > 0 and centring.dim and cfg.algo in STRICT_ALGORITHMS else None
         )
-        if cfg.range_centring_cost > 0 and self.centring_task.dim and cfg.algo in STRICT_ALGORITHMS:
+        if self.centring_task is not None:
             self.levels = [self.levels[0], [*self.levels[1], self.centring_task], *self.levels[2:]]
         self._setup_posture(robot, cfg, gain)
         self._position_tasks = list(self.wrist_tasks)
@@ -489,7 +491,8 @@ class SolverCore:
         held = self._set_targets(t)
         self._shape_gains()
         levels = self._levels_for(self.wrist_only)
-        self.centring_task.update(self.q_raw)
+        if self.centring_task is not None:
+            self.centring_task.update(self.q_raw)
         if self.recovery is not None and self.recovery.update(
             self.configuration, self.wrist_tasks, self.elbow_tasks, t
         ):

@@ -20,7 +20,7 @@ from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 _MESH_RE = re.compile(r'filename="(package://[^"]+)"')
 
 
-def _urdf_for_mujoco(profile: RobotProfile) -> str:
+def urdf_for_mujoco(profile: RobotProfile) -> str:
     text = profile.urdf_path.read_text()
     text = _MESH_RE.sub(lambda m: f'filename="{profile.mesh_uri_to_path(m.group(1))}"', text)
     compiler = (
@@ -120,7 +120,7 @@ def build_mujoco_robot(
             keeps those spurious contacts out while arms still collide with torso and legs.
     """
     prof = profile if isinstance(profile, RobotProfile) else load_profile(profile or DEFAULT_PROFILE)
-    spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(prof))
+    spec = mujoco.MjSpec.from_string(urdf_for_mujoco(prof))
     spec.option.timestep = timestep
     kp = prof.actuators.get("kp", 400.0)
     kv = prof.actuators.get("kv", 20.0)
