@@ -44,10 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
-    t.add_argument("--action-kind", choices=("posture", "velocity"), default="posture",
-                   help="posture: the encoder gives the operator's shoulder posture q* from the hand pose, driven as "
-                   "q0dot = K (q* - q); velocity: the paper's q0dot (label -eta grad H)")  # fmt: skip
-    t.add_argument("--action-gain", type=float, default=None, help="K [1/s] of the posture kind (default 20)")
+    t.add_argument("--action-kind", choices=("elbow", "posture", "velocity"), default="elbow",
+                   help="elbow: the encoder gives the operator's elbow from the hand pose, tracked by the solver's "
+                   "elbow task; posture: the operator's shoulder posture q*, driven as q0dot = K (q* - q); "
+                   "velocity: the paper's q0dot (label -eta grad H)")  # fmt: skip
+    t.add_argument("--action-gain", type=float, default=None,
+                   help="K [1/s] of the posture kind and of the elbow kind's rollouts (default 20)")  # fmt: skip
     t.add_argument("--no-mirror", dest="mirror", action="store_false",
                    help="do not add each arm's demonstrations, mirrored, to the other arm's")  # fmt: skip
     from services.posture import bench
@@ -98,7 +100,7 @@ GATE_MIN = 0.03
 def _train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from services.posture.features import ACTION_LAYOUT, ARM_STATE_LAYOUT, HAND_INPUTS, STATE_LAYOUT
+    from services.posture.features import ACTION_LAYOUTS, ARM_STATE_LAYOUT, HAND_INPUTS, STATE_LAYOUT
     from services.posture.policy import save_policy
     from services.posture.relabel import ExperimentConfig, relabel_experiment
     from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip
@@ -118,7 +120,7 @@ def _train(args: argparse.Namespace) -> int:
         clips[p] = prepare_clip(p, robot)
     train = [clips[p] for p in train_paths]
     test = [clips[p] for p in test_paths] or train[-1:]
-    posture = args.action_kind == "posture"
+    posture = args.action_kind != "velocity"  # posture and elbow: labels from the hand pose alone
     tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture)
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
@@ -129,7 +131,7 @@ def _train(args: argparse.Namespace) -> int:
         "robot": robot.profile.name,
         "sides": list(SIDES),
         "state_layout": list(STATE_LAYOUT),
-        "action_layout": list(ACTION_LAYOUT),
+        "action_layout": list(ACTION_LAYOUTS[args.action_kind]),
         "action_joints": {s: [robot.joint_names[j] for j in arms.act[i]] for i, s in enumerate(SIDES)},
         "arm_joints": {s: [robot.joint_names[j] for j in arms.arm[i]] for i, s in enumerate(SIDES)},
         "arm_state_layout": list(ARM_STATE_LAYOUT),

@@ -39,8 +39,17 @@ ACTION_LIMIT = 2.0
 STATE_LAYOUT = ("Qw", "Qx", "Qy", "Qz", "px", "py", "pz", *(f"q{i}" for i in range(7)))
 ACTION_LAYOUT = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw")
 ARM_STATE_LAYOUT = ("ux", "uy", "uz", "fx", "fy", "fz")
-#: What the encoder outputs: the null-space velocity q̇₀ [rad/s] or the shoulder posture q* [rad].
-ACTION_KINDS = ("velocity", "posture")
+#: What the encoder outputs: the null-space velocity q̇₀ [rad/s], the shoulder posture q* [rad], or the
+#: operator's elbow e* (3,) [m] (robot base frame, on the robot's proportions: the retargeted elbow the
+#: full-mocap solver tracks), which the solver tracks on the elbow level (the wrist fixes the elbow up to
+#: its swivel, so a 3-D point is all a hand-only predictor needs to give).
+ACTION_KINDS = ("velocity", "posture", "elbow")
+#: Action entries by name, per kind (for the model file's metadata).
+ACTION_LAYOUTS = {
+    "velocity": ACTION_LAYOUT,
+    "posture": ACTION_LAYOUT,
+    "elbow": ("elbow_x", "elbow_y", "elbow_z"),
+}
 #: State entries a posture encoder reads: the hand pose (Q, p); the joints are masked out.
 HAND_INPUTS = 7
 #: Posture kind: gain K [1/s] of ``q̇₀ = K (q* - q)`` (the solver's elbow-task order of magnitude; with
@@ -80,6 +89,25 @@ class ArmFrame:
 def posture_action(target: np.ndarray, q_shoulder: np.ndarray, gain: float) -> np.ndarray:
     """q̇₀ (…, 3) [rad/s] pulling the shoulder joints q_shoulder (…, 3) to target (…, 3) [rad], bounded."""
     return np.clip(gain * (target - q_shoulder), -ACTION_LIMIT, ACTION_LIMIT)
+
+
+def elbow_action(J: np.ndarray, target: np.ndarray, elbow: np.ndarray, gain: float) -> np.ndarray:
+    """q̇₀ (3,) [rad/s] on the shoulder joints moving the elbow (3,) [m] toward target (3,) [m], bounded.
+
+    The elbow kind in the arms-only rollouts (the solver tracks the target with its own elbow task):
+    a damped least-squares step through the elbow Jacobian J (3, 3) of the shoulder joints.
+    """
+    v = gain * (target - elbow)
+    dq = J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(3), v)
+    return np.clip(dq, -ACTION_LIMIT, ACTION_LIMIT)
+
+
+def mirror_action(A: np.ndarray, sign: np.ndarray, kind: str) -> np.ndarray:
+    """Actions (…, 3) of one arm as the other arm's: joint signs (shoulder joints) or, for the elbow kind,
+    the point reflected through the x-z plane."""
+    if kind == "elbow":
+        return A * np.array([1.0, -1.0, 1.0])
+    return A * sign[:ACTION_DIM]
 
 
 def canonical_quat(Q: np.ndarray, Q_ref: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from services.posture.features import (
     action_joints,
     arm_joints,
     arm_state,
+    elbow_action,
     mirror_signs,
     posture_action,
     state,
@@ -150,9 +151,11 @@ class RolloutConfig:
         gain, orientation_gain: K_p of eq. (2) [1/s] on position and orientation.
         eta: η of eq. (3) [1/s]. settle: first frame held this long [s] before recording.
         posture_gain: gate fallback: rest-posture pull [1/s] on the arm joints.
-        action_kind: "velocity" (the expert's label is ``-η ∇H``, eqs. 3-6) or "posture" (the label is
-            the operator's shoulder posture ``q*``, driven as ``q̇₀ = K (q* - q)``).
-        action_gain: K [1/s] of the posture kind.
+        action_kind: "velocity" (the expert's label is ``-η ∇H``, eqs. 3-6), "posture" (the label is
+            the operator's shoulder posture ``q*``, driven as ``q̇₀ = K (q* - q)``) or "elbow" (the label
+            is the operator's elbow ``e*``, driven as a bounded damped least-squares step
+            ``q̇₀ = J_e⁺ K (e* - e)`` of the shoulder joints, :func:`.features.elbow_action`).
+        action_gain: K [1/s] of the posture and elbow kinds.
     """
 
     rate: float = 50.0
@@ -229,7 +232,8 @@ def rollout(
         raise ValueError("the policy driver needs a policy")
     if cfg.action_kind not in ACTION_KINDS:
         raise ValueError(f"action_kind must be one of {ACTION_KINDS}, got {cfg.action_kind!r}")
-    posture = cfg.action_kind == "posture"
+    kind = cfg.action_kind
+    posture = kind != "velocity"  # posture and elbow kinds: a label from the clip frame alone
     robot = arms.robot
     conf = Configuration(robot)
     q = robot.q_rest.copy()
@@ -257,7 +261,7 @@ def rollout(
             p_t.append(clip.p[i, k] + (0.0 if settling else 1.0) * clip.v[i, k] * tau)
             S[i] = state(matrix_to_quat(clip.R[i, k]), p_t[i], q[arms.arm[i]], arms.Q_ref[i])
             if posture:
-                A[i] = clip.q_star[i, k]
+                A[i] = clip.elbow[i, k] if kind == "elbow" else clip.q_star[i, k]
                 lab[i] = True
             elif clip.has_m[i, k]:
                 arms.align[i].set_target(clip.R_m[i, k], check=False)
@@ -267,7 +271,8 @@ def rollout(
         gate = np.zeros(2, bool)
         if driver == "policy":
             out = policy.act(S)
-            A_pi, gate, qd0_pi = out.action, out.gate, out.qd0
+            # copies: the policy's output arrays are its buffers, overwritten by the next call
+            A_pi, gate, qd0_pi = out.action.copy(), out.gate.copy(), out.qd0.copy()
         qd = np.zeros(robot.nq)
         for i in range(2):
             J = conf.get_frame_jacobian(wrist_names[i])[:, arms.arm[i]]
@@ -275,12 +280,17 @@ def rollout(
             ff = np.zeros(6) if settling else np.r_[clip.v[i, k], clip.w[i, k]]
             b = ff + np.r_[cfg.gain * (p_t[i] - p), cfg.orientation_gain * pin.log3(clip.R[i, k] @ R.T)]
             qd0 = np.zeros(7)
-            if driver == "expert":
-                qd0[:ACTION_DIM] = posture_action(A[i], q[arms.act[i]], cfg.action_gain) if posture else A[i]
-            elif gate[i] or not use_gate:
-                qd0[:ACTION_DIM] = qd0_pi[i]
-            else:
+            a_i = A[i] if driver == "expert" else A_pi[i]
+            if driver == "policy" and use_gate and not gate[i]:
                 qd0 = cfg.posture_gain * (robot.q_rest[arms.arm[i]] - q[arms.arm[i]])
+            elif kind == "elbow":
+                J_e = conf.get_frame_jacobian(elbow_names[i])[:3, arms.act[i]]
+                e_now = conf.get_frame_pose(elbow_names[i])[0]
+                qd0[:ACTION_DIM] = elbow_action(J_e, a_i, e_now, cfg.action_gain)
+            elif driver == "expert":
+                qd0[:ACTION_DIM] = posture_action(a_i, q[arms.act[i]], cfg.action_gain) if posture else a_i
+            else:
+                qd0[:ACTION_DIM] = qd0_pi[i]
             if not cfg.orientation_gain:
                 J, b = J[:3], b[:3]  # position-only end-effector task
             qd[arms.arm[i]] = clik_step(J, b, qd0)

@@ -23,6 +23,7 @@ from services.posture.features import (
     DECODER_DIM,
     HAND_INPUTS,
     STATE_DIM,
+    mirror_action,
     mirror_arm_state,
     mirror_state,
 )
@@ -56,8 +57,8 @@ class TrainConfig:
         decoder_weight: weight of the decoder loss against eq. (7)'s action loss.
         seed: torch/numpy seed. threads: torch CPU threads.
         hand_only: the encoder reads the hand pose (Q, p) only (the joint inputs are masked out and
-            their first-layer weights exported as zero): for the posture action kind, whose label
-            does not depend on where the robot's arm is.
+            their first-layer weights exported as zero): for the posture and elbow action kinds, whose
+            labels do not depend on where the robot's arm is.
     """
 
     hidden: int = 128
@@ -90,15 +91,16 @@ class Dataset:
         return Dataset([np.r_[self.S[i], S[i]] for i in range(2)], [np.r_[self.A[i], A[i]] for i in range(2)],
                        [np.r_[self.Z[i], Z[i]] for i in range(2)])  # fmt: skip
 
-    def with_mirror(self, sign: np.ndarray) -> Dataset:
+    def with_mirror(self, sign: np.ndarray, kind: str = "posture") -> Dataset:
         """Each arm's samples plus the other arm's reflected onto it (twice the data per arm).
 
         Args:
-            sign: (7,) joint signs of :func:`.features.mirror_signs` (also applied to the actions,
-                which live on the first three, shoulder, joints).
+            sign: (7,) joint signs of :func:`.features.mirror_signs` (also applied to joint-space
+                actions, which live on the first three, shoulder, joints).
+            kind: the action kind (:func:`.features.mirror_action`: elbow points are reflected).
         """
         S = [np.r_[self.S[i], mirror_state(self.S[1 - i], sign)] for i in range(2)]
-        A = [np.r_[self.A[i], self.A[1 - i] * sign[:ACTION_DIM]] for i in range(2)]
+        A = [np.r_[self.A[i], mirror_action(self.A[1 - i], sign, kind)] for i in range(2)]
         Z = [np.r_[self.Z[i], mirror_arm_state(self.Z[1 - i])] for i in range(2)]
         return Dataset(S, A, Z)
 

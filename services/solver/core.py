@@ -330,6 +330,8 @@ class SolverCore:
         self._layouts: dict[tuple[tuple[str, ...], int], list] = {}
         self.wrist_only: tuple[str, ...] = ()
         self.last_gate: dict[str, bool] = {}
+        #: side -> elbow target [m] of an elbow-kind policy this tick (wrist-only arm, gate open)
+        self.policy_elbow: dict[str, np.ndarray] = {}
         if cfg.algo == "clik-mimicry":
             # The paper's controller: full wrist poses as the end-effector task (eq. 2), the upper-arm
             # alignment (eqs. 3-6) as q̇₀; a wrist-only arm gets the posture level's velocities instead.
@@ -371,6 +373,7 @@ class SolverCore:
             e = self.tracker.sample(f"{s}_elbow", t)
             if e is None or (e.held and self.policy is not None):
                 wo.append(s)
+        self.policy_elbow = {}
         if not wo:
             return ()
         q = self.q_raw
@@ -398,6 +401,12 @@ class SolverCore:
                         gate[s] = bool(out.gate[i])
         for i, s in enumerate(SIDES):
             if s not in gate:
+                continue
+            if gate[s] and self.policy.kind == "elbow" and self.config.algo != "clik-mimicry":
+                # The predicted operator elbow goes to the arm's own elbow task (kept on its level, as
+                # with full targets) instead of a joint-velocity task.
+                self.policy_elbow[s] = out.action[i].copy()
+                wo.remove(s)
                 continue
             v = np.zeros(len(self.arm_idx[s]))
             if gate[s]:
@@ -608,6 +617,10 @@ class SolverCore:
         held: list[str] = []
         elbows = [t for t in self.elbow_tasks if side_of(t.frame) not in self.wrist_only]  # wrist-only: posture level
         for task in (*self.wrist_tasks, *elbows):
+            e_policy = self.policy_elbow.get(side_of(task.frame)) if task.frame in ELBOWS else None
+            if e_policy is not None:  # wrist-only arm, elbow-kind policy with its gate open
+                task.set_target(e_policy, np.zeros(3), check=False)
+                continue
             s = samples[task.frame]
             if s is None:
                 task.set_target_from_configuration(conf)

@@ -46,14 +46,30 @@ def policy_meta(robot: RobotModel, threshold: float) -> dict:
 
 
 def write_random_policy(
-    path: Path, robot: RobotModel, threshold: float = 1e3, seed: int = 0, posture_gain: float | None = None
+    path: Path,
+    robot: RobotModel,
+    threshold: float = 1e3,
+    seed: int = 0,
+    posture_gain: float | None = None,
+    elbow: dict[str, np.ndarray] | None = None,
+    hidden: int = 16,
+    scale: float = 0.3,
 ) -> Path:
     """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0).
 
     Args:
         posture_gain: when given, a posture-kind policy (encoder output = shoulder posture) with this K.
+        elbow: when given (side -> (3,) [m]), an elbow-kind policy whose encoder outputs that point for
+            every state (output layer zero, bias the point); the decoder stays random.
+        hidden, scale: hidden units and weight scale of the random layers.
     """
     meta = policy_meta(robot, threshold)
+    weights = random_weights(np.random.default_rng(seed), hidden=hidden, scale=scale)
     if posture_gain is not None:
         meta.update(action_kind="posture", posture_gain=posture_gain)
-    return save_policy(path, random_weights(np.random.default_rng(seed)), meta)
+    if elbow is not None:
+        meta.update(action_kind="elbow")
+        for side, e in elbow.items():
+            weights[f"{side}.enc.W2"] = np.zeros_like(weights[f"{side}.enc.W2"])
+            weights[f"{side}.enc.b2"] = np.asarray(e, dtype=float)
+    return save_policy(path, weights, meta)

@@ -46,7 +46,8 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
         assert rep["sides"][side]["curve"][-1][0] < 0.5 * rep["sides"][side]["curve"][0][0]
     pol = PosturePolicy(w, {**policy_meta(robot, 1e3)})
     out = pol.act(np.stack([data.S[0][5], data.S[1][5]]))
-    np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-12)
+    # (the real-time path computes in float32)
+    np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-6)
 
 
 def test_posture_kind_learns_the_operators_shoulder_posture_from_the_hand_alone(smallest):
@@ -74,6 +75,26 @@ def test_posture_kind_learns_the_operators_shoulder_posture_from_the_hand_alone(
     assert 1 - ((pred - A) ** 2).sum() / ((A - A.mean(0)) ** 2).sum() > 0.5
 
 
+def test_elbow_kind_labels_are_the_operators_elbow_and_driving_them_brings_the_elbow_there(smallest):
+    robot = build_robot_model(with_waist=False)
+    arms = ArmsModel(robot)
+    clip = prepare_clip(smallest[0], robot).slice(0, 60)
+    drive = rollout(arms, clip, "expert", None, RolloutConfig(settle=0.5, action_kind="elbow"))
+    idle = rollout(arms, clip, "expert", None, RolloutConfig(settle=0.5, action_kind="elbow", action_gain=0.0))
+    ok = drive.label_ok
+    for i in range(2):
+        gap = np.abs(drive.A[ok[:, i], i][:, None, :] - clip.elbow[i][None, :]).max(-1).min(1)
+        assert ok[:, i].sum() > 50 and gap.max() == 0.0  # every label is one of the clip's reference elbows
+    # Driving the label (a damped least-squares pull of the shoulder joints) brings the elbow toward the
+    # operator's: measured 3.4 cm against 6.5 cm for the same rollout without it.
+    assert np.nanmean(drive.elbow_err) < 0.6 * np.nanmean(idle.elbow_err)
+    assert np.nanmean(drive.wrist_err) < np.nanmean(idle.wrist_err) + 0.005  # the end-effector task still rules
+    data = from_rollouts([drive])
+    mirrored = data.with_mirror(arms.mirror, "elbow")
+    n = len(data.S[0])
+    np.testing.assert_allclose(mirrored.A[0][n:], data.A[1] * [1.0, -1.0, 1.0])  # points reflected through x-z
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # ~1 min on an idle machine; over 5 min at load 30 (retargeting with the upper-arm IK)
 def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
@@ -89,6 +110,7 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     assert set(meta["train_clips"]) | set(meta["test_clips"]) == {p.name for p in smallest}
     assert meta["state_layout"][:7] == ["Qw", "Qx", "Qy", "Qz", "px", "py", "pz"] and len(meta["state_layout"]) == 14
     assert meta["robot"] == "g1_29dof" and len(meta["sha256"]) == 64
+    assert meta["action_kind"] == "elbow" and meta["action_layout"] == ["elbow_x", "elbow_y", "elbow_z"]  # default
     report = json.loads(rep.read_text())
     assert [r["round"] for r in report["relabel"]] == [0, 1]
     assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time
