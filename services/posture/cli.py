@@ -41,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
     t.add_argument("--hidden", type=int, default=128, help="hidden units per layer (2 hidden layers)")
     t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
+    t.add_argument("--input-noise", type=float, default=0.1,
+                   help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
@@ -121,7 +123,8 @@ def _train(args: argparse.Namespace) -> int:
     train = [clips[p] for p in train_paths]
     test = [clips[p] for p in test_paths] or train[-1:]
     posture = args.action_kind != "velocity"  # posture and elbow: labels from the hand pose alone
-    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture)
+    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
+                       input_noise=args.input_noise)  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain

@@ -56,6 +56,9 @@ class TrainConfig:
         epochs: passes over the data. batch: minibatch size. lr: Adam step size.
         decoder_weight: weight of the decoder loss against eq. (7)'s action loss.
         seed: torch/numpy seed. threads: torch CPU threads.
+        input_noise: std of Gaussian noise added to the encoder's (normalised) inputs in training, a
+            regulariser: offline on the held-out frames, 0.1 took the elbow kind's prediction from
+            2.92 to 2.68 cm (projected onto the reachable circle).
         hand_only: the encoder reads the hand pose (Q, p) only (the joint inputs are masked out and
             their first-layer weights exported as zero): for the posture and elbow action kinds, whose
             labels do not depend on where the robot's arm is.
@@ -69,6 +72,7 @@ class TrainConfig:
     seed: int = 0
     threads: int = 1
     hand_only: bool = False
+    input_noise: float = 0.1
 
 
 @dataclass
@@ -181,7 +185,13 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
             tot_a = tot_z = 0.0
             for j in range(0, n, cfg.batch):
                 idx = perm[j : j + cfg.batch]
-                a_n = enc(T["S"][idx])
+                s_n = T["S"][idx]
+                if cfg.input_noise > 0.0:
+                    noise = torch.randn(s_n.shape, generator=gen) * cfg.input_noise
+                    if cfg.hand_only:
+                        noise[:, HAND_INPUTS:] = 0.0  # the masked joints stay at their mean
+                    s_n = s_n + noise
+                a_n = enc(s_n)
                 loss_a = ((a_n - T["A"][idx]) ** 2).mean()  # eq. (7)
                 a = a_n * na_sd + na_mu  # the decoder sees the encoder's action in physical units
                 d_in = (torch.cat([a, q_xd[idx]], dim=1) - nd_mu) / nd_sd
