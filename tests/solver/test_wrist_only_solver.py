@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from services.solver.core import ELBOW_FF_LIMIT, SolverConfig, SolverCore
+from services.solver.core import SolverConfig, SolverCore
 from shared.kinematics import JointVelocityTask
 from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
@@ -148,29 +148,3 @@ def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_p
     assert "held" not in {c.status for c in cmds[10:]}
     for q in q_pol:
         assert np.all(q >= robot17.lower - 1e-12) and np.all(q <= robot17.upper + 1e-12)
-
-
-def test_elbow_kind_feed_forward_is_the_predictions_finite_difference_bounded(robot17, tmp_path):
-    rest = robot17.frame_poses(robot17.q_rest)
-    target = {s: rest[f"{s}_elbow"][0] for s in ("left", "right")}
-    core = SolverCore(robot17, SolverConfig(qp="daqp", rate=RATE, smoothing=False, self_collision=False,
-                                            posture_policy=str(write_random_policy(tmp_path / "e.npz", robot17,
-                                                                                   elbow=target))))  # fmt: skip
-    act, clock = core.policy.act, {"t": 0.0}
-    speed = np.array([[0.3, -0.1, 0.2], [-0.5, 0.0, 3.0]])  # [m/s]; the right arm's z is past the bound
-
-    def moving(S):  # the real policy's output, drifting at `speed` (a hand moving the prediction)
-        out = act(S)
-        out.action[:] += speed * clock["t"]
-        return out
-
-    core.policy.act = moving
-    stream = wrist_stream(robot17, 2)
-    for k in range(4):
-        clock["t"] = k / RATE
-        core.step(stream[0] if k == 0 else None, None, clock["t"])
-        ff = [t._ff.copy() for t in core.elbow_tasks]
-        if k == 0:
-            assert all(np.all(v == 0.0) for v in ff)  # no previous prediction yet
-    np.testing.assert_allclose(ff[0], speed[0], atol=1e-4)  # (float32 prediction, differenced over 5 ms)
-    np.testing.assert_allclose(ff[1], [-0.5, 0.0, ELBOW_FF_LIMIT], atol=1e-4)
