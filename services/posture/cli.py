@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
     t.add_argument("--hidden", type=int, default=128, help="hidden units per layer (2 hidden layers)")
     t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
-    t.add_argument("--input-noise", type=float, default=0.1,
+    t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
