@@ -62,6 +62,8 @@ class JointBounds:
         self._d = np.empty((2, n))  # distances to the stop below and above (``brake_both``)
         self._amax_dt = np.empty(n)  # a_max dt of the last dt
         self._amax_dt_for = None
+        self._free = np.empty(n)  # distance to a stop beyond which braking allows more than vmax (``braking_free``)
+        self._free_for: tuple[float, float] | None = None
 
     def compute(
         self,
@@ -95,9 +97,26 @@ class JointBounds:
         self._intersect(t, np.add(qd_prev, self._amax_dt, out=self._t2))
         d = self._d
         below, above = np.subtract(q, self.lower, out=d[0]), np.subtract(self.upper, q, out=d[1])
-        self._intersect(*self.brake_both(below, above, dt))
+        if not self.braking_free(d, dt):
+            # Near a stop: the braking bound is tighter than vmax somewhere. Far from every stop it is looser
+            # than vmax on both sides, and the velocity clamp below gives exactly the same box without it.
+            self._intersect(*self.brake_both(below, above, dt))
         self._intersect(self._neg_vmax, self.vmax)
         return lb, ub
+
+    def braking_free(self, distances: np.ndarray, dt: float, decel: float = 1.0) -> bool:
+        """True when every distance (k, n) [rad] to a stop is so large that ``brake`` allows more than vmax there.
+
+        ``brake(d) >= vmax`` exactly when ``d >= vmax dt + vmax^2 / (2 decel a_max)``; the test keeps a 1 % margin
+        over that, far above round-off, so a True answer never hides a braking bound tighter than vmax.
+        """
+        key = (dt, decel)
+        if key != self._free_for:
+            np.multiply(self.vmax, dt, out=self._free)
+            self._free += self.vmax * self.vmax / (2.0 * decel * self.amax)
+            self._free *= 1.01
+            self._free_for = key
+        return bool((distances > self._free).all())
 
     def brake_both(
         self, below: np.ndarray, above: np.ndarray, dt: float, decel: float = 1.0

@@ -91,6 +91,8 @@ class QuinticSmoother:
         self._lo = np.zeros((6, n))
         self._hi = np.zeros((6, n))
         self._limits_for: float | None = None  # the step s the s-dependent rows of _lo, _hi were set for
+        self._dist = np.empty((2, n))  # distances to the stops below and above
+        self._vmax_rows = False  # the velocity rows of _lo, _hi hold +-vmax (no braking bound tighter)
         if limits is not None:
             self._lo[0], self._hi[0] = limits.lower, limits.upper
             self._hi[2] = limits.amax
@@ -178,10 +180,21 @@ class QuinticSmoother:
             np.multiply(lim.amax, s, out=hi[4])
             np.negative(hi[4], out=lo[4])
             self._limits_for = s
-        below, above = lim.brake_both(p0 - lim.lower, lim.upper - p0, s, decel=BRAKE_DECEL)
-        np.maximum(below, lim._neg_vmax, out=lo[1])
-        np.minimum(above, lim.vmax, out=hi[1])
-        lo[5], hi[5] = lo[1], hi[1]
+        d = self._dist
+        np.subtract(p0, lim.lower, out=d[0])
+        np.subtract(lim.upper, p0, out=d[1])
+        if lim.braking_free(d, s, BRAKE_DECEL):
+            # Far from every stop the braking bound allows more than vmax: the velocity rows are +-vmax exactly.
+            if not self._vmax_rows:
+                lo[1], hi[1] = lim._neg_vmax, lim.vmax
+                lo[5], hi[5] = lo[1], hi[1]
+                self._vmax_rows = True
+        else:
+            below, above = lim.brake_both(d[0], d[1], s, decel=BRAKE_DECEL)
+            np.maximum(below, lim._neg_vmax, out=lo[1])
+            np.minimum(above, lim.vmax, out=hi[1])
+            lo[5], hi[5] = lo[1], hi[1]
+            self._vmax_rows = False
         bad = ((y < lo) | (y > hi)).any(axis=0)
         if not bad.any():
             S[:3] = nxt
