@@ -255,6 +255,7 @@ class SolverCore:
             "smoothing_limited": 0,
             "resyncs": 0,
             "qp_calls": 0,
+            "qp_fallbacks": 0,  # QPs DAQP failed on and PIQP solved (see DaqpBackend.fallback)
             "policy_ticks": 0,
             "gate_closed": 0,
         }
@@ -507,6 +508,7 @@ class SolverCore:
             ineq.relax_to(np.minimum(np.maximum(0.0, lb), ub))
             sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
         self.counts["qp_calls"] += sol.qp_calls
+        self.counts["qp_fallbacks"] = getattr(getattr(self.algorithm, "backend", None), "fallbacks", 0)
         qd, reason = self._checked_velocity(sol, lb, ub)
         status, reason = self._status(qd, sol, held, reason)
         self._integrate(qd, dt)
