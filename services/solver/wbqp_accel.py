@@ -170,7 +170,8 @@ class WbqpAccel:
         self._box_consts = list(zip(self.lower.tolist(), self.upper.tolist(), self._brake.tolist(), amax, eps))
         self._f_gain = [2.0 * r / cfg.dt for r in cfg.r_weight]  # f = 2 R q̇ / Δt (see solve)
         self._reg = self.backend.regularization * np.eye(NQ)
-        self._H = 2.0 * self.R + self._reg  # the hard-equality QP's Hessian never changes
+        self._H = 2.0 * self.R + self._reg  # the hard-equality QP's Hessian never changes (diagonal)
+        self._h_inv = (1.0 / np.diag(self._H)).tolist()
         # DAQP is called directly (see _solve_equality); any other backend through its interface.
         self._daqp = isinstance(self.backend, DaqpBackend)
         self._sense = np.zeros(NQ + 4, dtype=np.int32)
@@ -281,7 +282,7 @@ class WbqpAccel:
         # On the feasible set of eq. 8 the first term is identically 0, so the hard-equality QP
         # keeps only the R term (divided by Δt^4: the same minimiser, a well-scaled H):
         #   H = 2 R, f = 2 R q̇ / Δt.
-        f = np.array([g * v for g, v in zip(self._f_gain, qdl)])
+        f = [g * v for g, v in zip(self._f_gain, qdl)]
         nh_E = [x / dt for x in nh_row]
         nh_e = nh_rhs / dt
         res = self._solve_equality(f, lo, hi, [*J, nh_E], [*b, nh_e])
@@ -308,19 +309,29 @@ class WbqpAccel:
         return WbqpResult(qdd, status, reason, resid, res.iters, ms, np.array(pref), cpu, q_next, qd_next)
 
     def _solve_equality(
-        self, f: np.ndarray, lo: list[float], hi: list[float], E: list[list[float]], e: list[float]
+        self, f: list[float], lo: list[float], hi: list[float], E: list[list[float]], e: list[float]
     ) -> QpResult:
-        """The hard-equality QP: min ½ q̈ᵀ H q̈ + fᵀ q̈ s.t. lo <= q̈ <= hi, E q̈ = e (E: 4 rows of 7)."""
+        """The hard-equality QP: min ½ q̈ᵀ H q̈ + fᵀ q̈ s.t. lo <= q̈ <= hi, E q̈ = e (E: 4 rows of 7).
+
+        First its equality-only optimum in closed form (:func:`equality_qp`): when that lies in the
+        box, no bound is active and it is the QP's solution (the KKT conditions hold with zero bound
+        multipliers), ``iters = 0``. Otherwise the QP solver: DAQP called directly on the arrays
+        ``DaqpBackend.solve`` would build (the box as DAQP's simple bounds, the equality rows as its
+        band), or any other backend through its interface.
+        """
+        x = equality_qp(self._h_inv, f, E, e)
+        if x is not None and all(lk <= xk <= hk for xk, lk, hk in zip(x, lo, hi)):
+            return QpResult(np.array(x), True, 0, "closed form (no bound active)")
+        fa = np.array(f)
         if not self._daqp:
             lo_a, hi_a = np.array(lo), np.array(hi)
-            return self.backend.solve(self._H, f, lo_a, hi_a, E=np.array(E), e=np.array(e), key="wbqp-eq")
-        # DaqpBackend.solve's problem (the box as DAQP's simple bounds, the equality rows as its band),
-        # built straight from the floats. DAQP's stateless call, not a daqp.Model kept across ticks:
-        # on this QP the Model's update costs more than a fresh setup (measured: 27 against 23 us).
+            return self.backend.solve(self._H, fa, lo_a, hi_a, E=np.array(E), e=np.array(e), key="wbqp-eq")
+        # DAQP's stateless call, not a daqp.Model kept across ticks: on this QP the Model's update
+        # costs more than a fresh setup (measured: 27 against 23 us).
         band = self.backend.eq_band
         bu = np.array(hi + [v + band for v in e])
         bl = np.array(lo + [v - band for v in e])
-        x, _fval, flag, info = daqp.solve(self._H, f, np.array(E), bu, bl, self._sense, **self.backend.settings)
+        x, _fval, flag, info = daqp.solve(self._H, fa, np.array(E), bu, bl, self._sense, **self.backend.settings)
         ok = flag in (1, 2) and math.isfinite(x @ x)  # one reduction: any inf or nan makes it non-finite
         return QpResult(x, ok, info["iterations"], f"exitflag {flag}")
 
@@ -328,7 +339,7 @@ class WbqpAccel:
         self,
         res: QpResult,
         resid: float,
-        f: np.ndarray,
+        f: list[float],
         lo: list[float],
         hi: list[float],
         J: list[list[float]],
@@ -373,6 +384,63 @@ class WbqpAccel:
             f"hand task as objective, acceleration residual {resid:.3g} m/s^2{relaxed}"
         )
         return res, resid, lo, hi, reason
+
+
+def equality_qp(h_inv: list[float], f: list[float], E: list[list[float]], e: list[float]) -> list[float] | None:
+    """argmin ½ xᵀ H x + fᵀ x s.t. E x = e, for a diagonal H (h_inv [n]: its inverse) and 4 rows E [4][n], e [4].
+
+    x = H⁻¹ (Eᵀ λ - f) with (E H⁻¹ Eᵀ) λ = e + E H⁻¹ f, the 4 x 4 system solved by Cholesky, all
+    written out (the planner's 3 hand rows and eq. 12's row). Returns None when E H⁻¹ Eᵀ is not
+    clearly positive definite (E loses rank, e.g. at an arm singularity): a QP solver decides then.
+    """
+    m00 = m10 = m11 = m20 = m21 = m22 = m30 = m31 = m32 = m33 = 0.0
+    s0 = s1 = s2 = s3 = 0.0  # E H⁻¹ f
+    for hk, fk, ak, bk, ck, dk in zip(h_inv, f, *E):
+        ha, hb, hc, hd = hk * ak, hk * bk, hk * ck, hk * dk
+        m00 += ha * ak
+        m10 += hb * ak
+        m11 += hb * bk
+        m20 += hc * ak
+        m21 += hc * bk
+        m22 += hc * ck
+        m30 += hd * ak
+        m31 += hd * bk
+        m32 += hd * ck
+        m33 += hd * dk
+        s0 += ha * fk
+        s1 += hb * fk
+        s2 += hc * fk
+        s3 += hd * fk
+    floor = 1e-12 * max(m00, m11, m22, m33)
+    # Cholesky M = L Lᵀ (lower L), a relative floor on the pivots.
+    if not m00 > floor:
+        return None
+    l00 = math.sqrt(m00)
+    l10, l20, l30 = m10 / l00, m20 / l00, m30 / l00
+    p = m11 - l10 * l10
+    if not p > floor:
+        return None
+    l11 = math.sqrt(p)
+    l21, l31 = (m21 - l20 * l10) / l11, (m31 - l30 * l10) / l11
+    p = m22 - l20 * l20 - l21 * l21
+    if not p > floor:
+        return None
+    l22 = math.sqrt(p)
+    l32 = (m32 - l30 * l20 - l31 * l21) / l22
+    p = m33 - l30 * l30 - l31 * l31 - l32 * l32
+    if not p > floor:
+        return None
+    l33 = math.sqrt(p)
+    e0, e1, e2, e3 = e
+    y0 = (e0 + s0) / l00  # L y = e + E H⁻¹ f
+    y1 = (e1 + s1 - l10 * y0) / l11
+    y2 = (e2 + s2 - l20 * y0 - l21 * y1) / l22
+    y3 = (e3 + s3 - l30 * y0 - l31 * y1 - l32 * y2) / l33
+    k3 = y3 / l33  # Lᵀ λ = y
+    k2 = (y2 - l32 * k3) / l22
+    k1 = (y1 - l21 * k2 - l31 * k3) / l11
+    k0 = (y0 - l10 * k1 - l20 * k2 - l30 * k3) / l00
+    return [hk * (ak * k0 + bk * k1 + ck * k2 + dk * k3 - fk) for hk, fk, ak, bk, ck, dk in zip(h_inv, f, *E)]
 
 
 def _residual(J: list[list[float]], x: list[float], b: list[float]) -> float:
