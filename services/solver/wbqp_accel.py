@@ -67,7 +67,8 @@ class WbqpConfig:
             forbids for the torso and the hand equality passes on to the arm: on mocap targets the
             torso height hit its limit and the arm whipped at 100 rad/s. So the velocity towards
             a limit is also bounded: ``q̇' <= sqrt(2 brake (q_hi - q))`` (and the mirror).
-        qp: QP backend (``daqp`` default: on this 7-variable QP it costs about 0.8x PIQP's CPU time; ``piqp``).
+        qp: QP backend for the ticks where a bound is active (``daqp`` default: on this 7-variable QP
+            it costs about 0.8x PIQP's CPU time; ``piqp``).
         eq_tol: relative residual of eq. 8 (times 1 + ||b||) above which the hard-equality solve counts as failed.
     """
 
@@ -105,7 +106,7 @@ class WbqpResult:
     Attributes:
         qdd: (7,) planned q̈. status: ``ok`` (hard equality held) or ``infeasible`` (section 4.1
             fallback) or ``failed`` (no QP solution: q̈ brakes within the limits). reason: why, when not ok.
-        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations.
+        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations (0: closed form, no bound active).
         solve_ms: wall time of the whole planner tick [ms]: hand kinematics (p, J_a, J̇_a q̇), the
             reference, objective and constraints, the QP solve(s) and the integration (eq. 7) into
             ``q_next``, ``qd_next``.
