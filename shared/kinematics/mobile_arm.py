@@ -135,22 +135,29 @@ class MobileArmKinematics:
         for ((wx, wy, wz), (vx, vy, vz), (xx, yy, zz, xy, xz, yz), (kv0, kv1, kv2), (mv0, mv1, mv2)), th in zip(
             self._joint, theta
         ):
-            ax = r0 * wx + r1 * wy + r2 * wz
-            ay = r3 * wx + r4 * wy + r5 * wz
-            az = r6 * wx + r7 * wy + r8 * wz
-            bx = r0 * vx + r1 * vy + r2 * vz + py * az - pz * ay
-            by = r3 * vx + r4 * vy + r5 * vz + pz * ax - px * az
-            bz = r6 * vx + r7 * vy + r8 * vz + px * ay - py * ax
-            cols.append((ax, ay, az, bx, by, bz))
+            first = not cols  # T_0 = I: the first joint's products are skipped (J_s1 = S_1)
+            if first:
+                cols.append((wx, wy, wz, vx, vy, vz))
+            else:
+                ax = r0 * wx + r1 * wy + r2 * wz
+                ay = r3 * wx + r4 * wy + r5 * wz
+                az = r6 * wx + r7 * wy + r8 * wz
+                bx = r0 * vx + r1 * vy + r2 * vz + py * az - pz * ay
+                by = r3 * vx + r4 * vy + r5 * vz + pz * ax - px * az
+                bz = r6 * vx + r7 * vy + r8 * vz + px * ay - py * ax
+                cols.append((ax, ay, az, bx, by, bz))
             st, ct = math.sin(th), math.cos(th)
             oc, ts = 1.0 - ct, th - st
             # translation of e^[S]θ: (I θ + (1 - cos θ)[ω̂] + (θ - sin θ)[ω̂]^2) v
             tx = vx * th + oc * kv0 + ts * mv0
             ty = vy * th + oc * kv1 + ts * mv1
             tz = vz * th + oc * kv2 + ts * mv2
-            px += r0 * tx + r1 * ty + r2 * tz
-            py += r3 * tx + r4 * ty + r5 * tz
-            pz += r6 * tx + r7 * ty + r8 * tz
+            if first:
+                px, py, pz = tx, ty, tz
+            else:
+                px += r0 * tx + r1 * ty + r2 * tz
+                py += r3 * tx + r4 * ty + r5 * tz
+                pz += r6 * tx + r7 * ty + r8 * tz
             # rotation of e^[S]θ (Rodrigues, |ω| = 1): cos θ I + sin θ [ω̂] + (1 - cos θ) ω ωᵀ, then R <- R E
             sx, sy, sz = st * wx, st * wy, st * wz
             e0, e4, e8 = ct + oc * xx, ct + oc * yy, ct + oc * zz
@@ -158,6 +165,9 @@ class MobileArmKinematics:
             e1, e3 = oxy - sz, oxy + sz
             e2, e6 = oxz + sy, oxz - sy
             e5, e7 = oyz - sx, oyz + sx
+            if first:
+                r0, r1, r2, r3, r4, r5, r6, r7, r8 = e0, e1, e2, e3, e4, e5, e6, e7, e8
+                continue
             r0, r1, r2, r3, r4, r5, r6, r7, r8 = (
                 r0 * e0 + r1 * e3 + r2 * e6,
                 r0 * e1 + r1 * e4 + r2 * e7,
