@@ -73,7 +73,9 @@ class RetargetNode:
         self._pub = svc.publisher(svc.keys.targets)
         # Every frame is retargeted while we keep up; under overload (bursts faster than we can
         # retarget) stale frames are skipped and counted, so latency stays bounded.
-        self.frames = svc.subscribe_latest(
+        # The worker reads the frames' ring itself (one thread hand-off less per frame than a mailbox
+        # fed by a receiver thread): it has no deadline to keep, so a blocking wait is all it needs.
+        self.frames = svc.subscribe_reader(
             svc.keys.mocap_frame, HumanFrame.decode, stream="frames", depth=FRAME_QUEUE, max_age=FRAME_MAX_AGE
         )
         self._worker = threading.Thread(target=self._spin, name="retarget-worker", daemon=True)
@@ -83,8 +85,8 @@ class RetargetNode:
         svc.queryable(svc.keys.retarget_source, self.on_source)
 
     def _spin(self) -> None:
-        while not self.svc.stop_event.is_set():
-            frame = self.frames.take(timeout=0.1)
+        while not self.svc.stop_event.is_set() and not self.frames.closed:
+            frame = self.frames.wait_take()
             if frame is not None:
                 self.on_frame(frame)
 
