@@ -560,11 +560,12 @@ class ServiceRunner:
 
     def __exit__(self, *exc: Any) -> None:
         self.stop_event.set()
-        self.status.state = "stopping"
         if self._status_thread is not None:
             self._status_thread.join(timeout=2.0)
+        self._refresh_status()  # the last figures, then "stopping" (a refresh would say "ok" again)
+        self.status.state = "stopping"
         try:
-            self._publish_status()
+            self._publish_status(refresh=False)
         except Exception:  # the session may already be unusable at exit
             pass
         for ent in reversed(self._entities):
@@ -585,12 +586,16 @@ class ServiceRunner:
         while not self.stop_event.wait(0.2):
             pass
 
-    def _publish_status(self) -> None:
+    def _refresh_status(self) -> None:
         if self.before_status is not None:
             try:
                 self.before_status()
             except Exception as exc:  # status must never take the service down
                 self.log.debug("status update failed: %s", exc)
+
+    def _publish_status(self, refresh: bool = True) -> None:
+        if refresh:
+            self._refresh_status()
         self._status_pub.put(self.status.snapshot().encode())
 
     def _status_loop(self) -> None:

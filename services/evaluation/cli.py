@@ -125,7 +125,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
-    skipped = []
+    skipped: list[dict] = []
+    failed: list[dict] = []  # (clip, algo) runs that raised: recorded, the rest go on
     for path in args.clips:
         try:
             clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
@@ -141,22 +142,33 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         mask = None
         for label, algo, wo, extra in runs:
             bar.set_postfix_str(f"{clip.name[:28]} {label}")
-            tr = run_algorithm(
-                robot,
-                targets,
-                algo,
-                qp=args.qp,
-                rate=args.rate,
-                sim=sim,
-                solver=extra,
-                wqp_weights=wqp_weights,
-                wrist_only=wo,
-            )
-            if algo == REFERENCE_ALGO and not wo:
-                mask = reachable_mask(tr)
-            if algo in algos or wrist_only:
-                entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
-                traces[(clip.name, label)] = tr
+            try:
+                tr = run_algorithm(
+                    robot,
+                    targets,
+                    algo,
+                    qp=args.qp,
+                    rate=args.rate,
+                    sim=sim,
+                    solver=extra,
+                    wqp_weights=wqp_weights,
+                    wrist_only=wo,
+                )
+                if algo == REFERENCE_ALGO and not wo:
+                    mask = reachable_mask(tr)
+                if algo in algos or wrist_only:
+                    entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
+                    traces[(clip.name, label)] = tr
+            except Exception as exc:  # one failed run must not lose the others' results
+                log.error(
+                    "%s on %s failed: %s: %s",
+                    label,
+                    clip.name,
+                    type(exc).__name__,
+                    exc,
+                    exc_info=log.isEnabledFor(logging.DEBUG),
+                )
+                failed.append({"clip": clip.name, "algo": label, "error": f"{type(exc).__name__}: {exc}"})
             bar.update(1)
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         clips_out.append(entry)
@@ -166,6 +178,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     result = {
         "clips": clips_out,
         "skipped": skipped,
+        "failed": failed,
         "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)},
         "paper": PAPER,
     }
@@ -267,4 +280,7 @@ def main(args: argparse.Namespace) -> int:
         write_report(result, traces, Path(args.plots))
     sys.stdout.write(json.dumps(result["summary"], indent=2) + "\n")
     log.info("wrote %s in %.1f s", out, result["settings"]["wall_s"])
+    if result["failed"]:
+        log.error("%d run(s) failed; the others are in %s, the failures under 'failed'", len(result["failed"]), out)
+        return 1
     return 0

@@ -123,9 +123,11 @@ def _record(args, rc: RecordingConfig, lc: LoggerConfig, rrd: Path, visual, serv
     instance = rc.id or ("viewer" if rc.serve else "main")
     with ServiceRunner("logger", args, instance=instance) as svc:
         node = LoggerNode(logger, svc, queue_size=lc.queue)
+        node.update_status()
+        svc.before_status = node.update_status  # every status carries figures of its own moment
         svc.log.info("recording %s to %s", svc.keys.everything, rrd)
-        while not svc.stop_event.wait(0.5):
-            node.update_status()
+        svc.wait()
+        svc.before_status = None
         node.close()
         logger.flush_error()
         node.update_status()

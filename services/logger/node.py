@@ -66,15 +66,21 @@ class LoggerNode:
                 self.logger.log_skipped(self.skipped)
 
     def update_status(self) -> None:
-        """Refresh the service-specific status figures."""
+        """Refresh the service-specific status figures.
+
+        Called from the status thread right before each status is published, while the worker
+        logs: the worker's dicts and deque are copied first (one C-level copy each, atomic under
+        the GIL) so a key added meanwhile cannot break the iteration.
+        """
         st = self.svc.status
         st.extra["queue"] = float(self.queue.qsize())
         st.extra["skipped"] = float(self.skipped)
-        for k, v in self.logger.counts.items():
+        for k, v in dict(self.logger.counts).items():
             st.extra[f"logged.{k}"] = float(v)
-        st.extra["rejected"] = float(sum(self.logger.rejects.values()))
-        if self._step_us:
-            us = np.asarray(self._step_us)
+        st.extra["rejected"] = float(sum(dict(self.logger.rejects).values()))
+        steps = list(self._step_us)
+        if steps:
+            us = np.asarray(steps)
             st.extra["step_us_p50"] = float(np.percentile(us, 50))
             st.extra["step_us_p99"] = float(np.percentile(us, 99))
         st.state = "degraded" if self.skipped else "ok"

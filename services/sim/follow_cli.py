@@ -28,20 +28,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_args(p)
 
 
-def alive_solvers(z, keys: Keys, wait: float = 0.5) -> list[str]:
+def alive_solvers(z, keys: Keys, wait: float = 0.5, attempt: float = 0.5) -> list[str]:
     """Solver ids holding a liveliness token on the session now.
 
-    Asked again (within ``wait`` [s]) until the answer holds any token at all: the sim that
-    called us is alive, so an empty answer means this fresh session's query was not routed yet
-    (seen on a loaded machine as "alive: none" beside two live solvers), not an empty stack.
+    Asked again, each get bounded by ``attempt`` [s], until some answer holds a token or
+    ``wait`` [s] has passed: the sim that called us is alive, so an empty answer means this
+    fresh session's query was not routed yet (seen on a loaded machine as "alive: none" beside
+    two live solvers), not an empty stack. One long get could spend the whole wait on a query
+    that was never routed; short ones retry it.
     """
     deadline = time.monotonic() + wait
     while True:
-        tokens = [Keys.parse_alive(str(r.ok.key_expr)) for r in z.liveliness().get(keys.all_alive, timeout=wait)
-                  if r.ok is not None]  # fmt: skip
+        left = max(0.05, deadline - time.monotonic())
+        replies = z.liveliness().get(keys.all_alive, timeout=min(attempt, left))
+        tokens = [Keys.parse_alive(str(r.ok.key_expr)) for r in replies if r.ok is not None]
         if tokens or time.monotonic() >= deadline:
             return sorted({p[1] for p in tokens if p and p[0] == "solver"})
-        time.sleep(0.1)
+        time.sleep(0.05)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -9,7 +9,8 @@ import time
 import pytest
 import zenoh
 
-from shared.bus import bus_args
+from shared.bus import ServiceRunner, bus_args, zenoh_config
+from shared.keys import Keys
 from shared.messages import ServiceStatus
 
 PEER = [sys.executable, "-m", "tests.support.bus_peer"]
@@ -80,3 +81,27 @@ def test_zenoh_config_defaults_and_flags(tmp_path, monkeypatch):
     conf = zenoh_config(bus_args())
     assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:77"]
     assert isinstance(conf, zenoh.Config)
+
+
+def test_the_last_status_says_stopping_and_carries_the_last_figures(router):
+    """A service's final status is refreshed through ``before_status`` and still says "stopping"."""
+    keys = Keys("st_stop")
+    got: list[ServiceStatus] = []
+    client = zenoh.open(zenoh_config(bus_args(connect=[router])))
+    client.declare_subscriber(keys.status("probe"), lambda s: got.append(ServiceStatus.decode(s.payload.to_bytes())))
+    time.sleep(0.3)  # let the subscription reach the router
+    work = {"done": 0}
+    with ServiceRunner("probe", bus_args(connect=[router], session="st_stop"), install_signals=False) as svc:
+
+        def refresh() -> None:
+            svc.status.extra["done"] = float(work["done"])
+            svc.status.state = "ok"  # what a service's refresh says while it runs
+
+        svc.before_status = refresh
+        work["done"] = 7  # done after the last periodic status
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline and not (got and got[-1].state == "stopping"):
+        time.sleep(0.05)
+    client.close()
+    assert got and got[-1].state == "stopping", [s.state for s in got]
+    assert got[-1].extra["done"] == 7.0
