@@ -686,12 +686,24 @@ class ServiceRunner:
         return slot
 
     def subscribe_reader(
-        self, key: str, decode: Callable[[bytes], Any], stream: str, depth: int = 1, max_age: float | None = None
+        self,
+        key: str,
+        decode: Callable[[bytes], Any],
+        stream: str,
+        depth: int = 1,
+        max_age: float | None = None,
+        ring: int | None = None,
     ) -> RingReader:
         """Like :meth:`subscribe_latest`, without the receiver thread: the consumer reads the ring
-        itself (:class:`RingReader`: waiting without a deadline, or polling at its own tick)."""
+        itself (:class:`RingReader`: waiting without a deadline, or polling at its own tick).
+
+        ``ring``: samples the Rust-side ring keeps while the consumer is busy (default ``depth``, at
+        least RING_MIN_CAPACITY). Nothing moves them into the mailbox meanwhile, so a consumer that
+        must not lose samples to a stall gives it room for the longest stall it absorbs.
+        """
         slot = LatestSlot(self.status, stream, decode, depth, max_age)
-        sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(max(depth, RING_MIN_CAPACITY)))
+        capacity = ring if ring is not None else max(depth, RING_MIN_CAPACITY)
+        sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
         # Not in _entities: undeclaring while take() waits in recv() fails; closing the session ends it.
         return RingReader(sub, self._into_slot(slot, stream, None), slot, self.status, f"{self.service}-{stream}")
 
