@@ -394,6 +394,11 @@ class LatestSlot:
             self._items.append((time.monotonic(), msg))
             self._cond.notify_all()
 
+    def pending(self) -> int:
+        """Messages waiting to be taken."""
+        with self._cond:
+            return len(self._items)
+
     def take(self, timeout: float | None = None) -> Any:
         """Oldest kept unread message that is not stale, waiting up to ``timeout`` [s]; None if none arrived
         (or it was invalid)."""
@@ -420,6 +425,82 @@ class LatestSlot:
                 self._status.reject("decoder", f"{self._stream}: {type(exc).__name__}: {exc}")
             return None
         return msg
+
+
+#: How often :meth:`RingReader.take` looks at the ring while it waits with a timeout [s] (start-up only).
+RING_POLL_S = 0.005
+
+
+class RingReader:
+    """A consumer that reads its subscription's Rust-side ring itself: no receiver thread.
+
+    Samples go through ``on_sample`` into ``slot`` (a :class:`LatestSlot`: depth, age and
+    decoding as there) only when the consumer asks, in its own thread. Compared with
+    :func:`ring_pump` each sample skips a thread hand-off: no wake-up of a receiver thread and no
+    GIL switch against the busy consumer. Two ways to ask:
+
+    * :meth:`wait_take` blocks in the ring's ``recv()`` (GIL released) until a message comes: for
+      a consumer without deadlines (the retarget's worker);
+    * :meth:`take` drains what is waiting now, without blocking: for a consumer that only needs
+      the newest sample at its own tick (the solver's robot state). No thread ever wakes for it.
+
+    The ring's own overflow (oldest first, without the GIL) shows up as gaps in a
+    NumberedPublisher's numbers. ``recv()`` has no timeout in zenoh-python 1.10: :meth:`wait_take`
+    returns None when the session is closed (the consumer's way out), and the subscriber must not
+    be undeclared while it waits.
+    """
+
+    def __init__(
+        self,
+        sub: zenoh.Subscriber,
+        on_sample: Callable[[zenoh.Sample], None],
+        slot: LatestSlot,
+        status: StatusCounters | None = None,
+        name: str = "ring",
+    ):
+        self._sub = sub
+        self._on_sample = on_sample
+        self.slot = slot
+        self._status = status
+        self._name = name
+        self.closed = False
+
+    def _drain(self) -> None:
+        try:
+            while (sample := self._sub.try_recv()) is not None:
+                self._handle(sample)
+        except zenoh.ZError:  # the session was closed
+            self.closed = True
+
+    def _handle(self, sample: zenoh.Sample) -> None:
+        try:
+            self._on_sample(sample)
+        except Exception as exc:  # the consumer must outlive any bad sample
+            if self._status is not None:
+                self._status.error(f"{self._name} receive failed: {type(exc).__name__}: {exc}")
+
+    def take(self, timeout: float | None = None) -> Any:
+        """Like :meth:`LatestSlot.take`: the next message waiting now, or None. With ``timeout`` [s]
+        it looks again every RING_POLL_S until one comes (meant for start-up waits, not hot paths)."""
+        deadline = time.monotonic() + (timeout or 0.0)
+        while True:
+            self._drain()
+            if self.slot.pending() or self.closed or time.monotonic() >= deadline:
+                return self.slot.take()
+            time.sleep(RING_POLL_S)
+
+    def wait_take(self) -> Any:
+        """The next message, waiting as long as it takes; None when the session closed, or when what
+        came was invalid (see :class:`LatestSlot`)."""
+        while not self.slot.pending():
+            try:
+                sample = self._sub.recv()
+            except zenoh.ZError:  # the session was closed
+                self.closed = True
+                return None
+            self._handle(sample)
+        self._drain()
+        return self.slot.take()
 
 
 # --------------------------------------------------------------------------- runner
@@ -565,6 +646,22 @@ class ServiceRunner:
         self._entities.append(sub)
         return sub
 
+    def _into_slot(
+        self, slot: LatestSlot, stream: str, accept: Callable[[str], bool] | None
+    ) -> Callable[[zenoh.Sample], None]:
+        """Per-sample bookkeeping of a mailbox subscription: gaps, ``accept`` filter, received, raw payload in."""
+        status = self.status
+        watch = gap_watch(status, stream)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            watch(sample)
+            if accept is not None and not accept(str(sample.key_expr)):
+                return
+            status.received(stream)
+            slot.put(sample.payload.to_bytes())
+
+        return on_sample
+
     def subscribe_latest(
         self,
         key: str,
@@ -584,18 +681,31 @@ class ServiceRunner:
         ``max_age`` [s]: see :class:`LatestSlot`.
         """
         slot = LatestSlot(self.status, stream, decode, depth, max_age)
-        status = self.status
-        watch = gap_watch(status, stream)
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            watch(sample)
-            if accept is not None and not accept(str(sample.key_expr)):
-                return
-            status.received(stream)
-            slot.put(sample.payload.to_bytes())
-
-        ring_pump(self.session, key, max(depth, RING_MIN_CAPACITY), on_sample, status, f"{self.service}-{stream}")
+        on_sample = self._into_slot(slot, stream, accept)
+        ring_pump(self.session, key, max(depth, RING_MIN_CAPACITY), on_sample, self.status, f"{self.service}-{stream}")
         return slot
+
+    def subscribe_reader(
+        self,
+        key: str,
+        decode: Callable[[bytes], Any],
+        stream: str,
+        depth: int = 1,
+        max_age: float | None = None,
+        ring: int | None = None,
+    ) -> RingReader:
+        """Like :meth:`subscribe_latest`, without the receiver thread: the consumer reads the ring
+        itself (:class:`RingReader`: waiting without a deadline, or polling at its own tick).
+
+        ``ring``: samples the Rust-side ring keeps while the consumer is busy (default ``depth``, at
+        least RING_MIN_CAPACITY). Nothing moves them into the mailbox meanwhile, so a consumer that
+        must not lose samples to a stall gives it room for the longest stall it absorbs.
+        """
+        slot = LatestSlot(self.status, stream, decode, depth, max_age)
+        capacity = ring if ring is not None else max(depth, RING_MIN_CAPACITY)
+        sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        # Not in _entities: undeclaring while take() waits in recv() fails; closing the session ends it.
+        return RingReader(sub, self._into_slot(slot, stream, None), slot, self.status, f"{self.service}-{stream}")
 
     def queryable(self, key: str, handler: Callable[[bytes | None], bytes]):
         """Serve ``key``: ``handler(payload or None) -> reply bytes``; exceptions become error replies."""

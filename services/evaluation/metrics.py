@@ -151,6 +151,7 @@ def trace_metrics(
         "limit_violations": limit_violations(trace, robot),
         "ticks": len(trace.t),
         "status_counts": {s: int(c) for s, c in zip(*np.unique(trace.status, return_counts=True))},
+        "qp_fallbacks": int(trace.counts.get("qp_fallbacks", 0)),
     }
     m["jerk_rms"] = jerk_rms(trace)
     if trace.clearance is not None:
@@ -225,7 +226,7 @@ def summarise(per_clip: list[dict]) -> dict:
                 s[key] = {k: float(np.mean([v[k] for v in vals])) for k in ("mean", "p50", "p99")}
             elif isinstance(vals[0], int | float) and not isinstance(vals[0], bool):
                 nums = [v for v in vals if isinstance(v, int | float)]
-                if key in ("limit_violations", "ticks", "self_collisions"):
+                if key in ("limit_violations", "ticks", "self_collisions", "qp_fallbacks"):
                     s[key] = float(np.sum(nums))
                 elif key in ("stuck_s",):
                     s[key] = float(np.max(nums))
@@ -237,7 +238,8 @@ def summarise(per_clip: list[dict]) -> dict:
                 else:
                     s[key] = float(np.mean(nums))
         s["limit_violations"] = int(s.get("limit_violations", 0))
-        if "self_collisions" in s:
-            s["self_collisions"] = int(s["self_collisions"])
+        for key in ("self_collisions", "qp_fallbacks"):
+            if key in s:
+                s[key] = int(s[key])
         out[a] = s
     return out

@@ -7,7 +7,8 @@ the first arrival of each ``seq`` at every hop (targets, command, robot
 state) on one clock. Latency is ``arrival - hdr.t0``; a frame is dropped at a
 hop when its ``seq`` never shows up there.
 
-As issue 13 specifies the bench, the solver ticks on every target (``--trigger event``)
+As issue 13 specifies the bench, the solver ticks on every target (``--trigger event``,
+with ``--rate`` the input rate up to the shipped 500 Hz: :func:`solver_rate`)
 and the sim publishes a state right after each applied command (``--state-on-command``:
 states at the input rate; the ``--state-rate`` ones only fill pauses), so the last hop's
 arrival is "command applied in the sim". ``hop_ms`` is each service's increment (its output's arrival minus its input's
@@ -16,6 +17,8 @@ arrival; for retarget, minus ``t0``): one bus hop plus the service's hand-off an
 and the samples it never received (``gaps``: numbers skipped by its publishers, i.e.
 lost inside Zenoh), per input stream; ``drops_total`` sums them over the frame's path
 (frames, targets, commands: not the solver's newest-wins ``sim_state`` feedback).
+``cpu_ms_per_frame`` is each process's CPU time over the measured frames per frame sent: where
+the time goes, whatever else the machine runs (latency and drops depend on that).
 """
 
 from __future__ import annotations
@@ -81,11 +84,33 @@ def _frames(n_frames: int, rate: float):
     return clip, idx
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """CPU time [s] (user + system) a process has used so far; None where /proc cannot say."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def solver_rate(input_rate: float) -> float:
+    """The bench solver's ``--rate`` [Hz]: the input rate, at most the shipped control rate.
+
+    ``--trigger event`` is meant for mocap at or above the control rate (``mimic solve --help``):
+    every tick then has new targets. Below it (200 Hz mocap on the 500 Hz default) the clock adds
+    ticks between targets, 2-3 per frame, each one a command, a sim state and a solver state decode
+    more, which on 2 cores turned into queueing on every hop.
+    """
+    from services.solver.core import SolverConfig
+
+    return min(float(input_rate), SolverConfig().rate)
+
+
 def run(args: argparse.Namespace) -> dict:
     port = args.port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     extra = {
-        "solver": ["--trigger", "event", *args.solver_args.split()],
+        "solver": ["--trigger", "event", "--rate", f"{solver_rate(args.rate):g}", *args.solver_args.split()],
         "sim": ["--state-on-command", *args.sim_args.split()],
     }
     n_total = int((args.duration + args.warmup) * args.rate)
@@ -128,7 +153,12 @@ def run(args: argparse.Namespace) -> dict:
         start = time.monotonic()
         late = 0
         frames = {i: clip.frame(int(i), seq=0) for i in np.unique(idx)}
+        first = int(args.warmup * args.rate)
+        pids = {**{h: stack.pid(h) for h in HOPS}, "bench": os.getpid()}
+        cpu0: dict[str, float | None] = {}
         for k in range(n_total):
+            if k == first:  # CPU over the measured frames only (start-up and warm-up left out)
+                cpu0 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
             target = start + k * period
             now = time.monotonic()
             # Sleep, never spin: a busy-waiting publisher takes a whole core from the services.
@@ -143,12 +173,12 @@ def run(args: argparse.Namespace) -> dict:
             t0_pub[k] = frame.hdr.t0 = time.time_ns()
             pub.put(frame.encode())
         elapsed = time.monotonic() - start
+        cpu1 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
         time.sleep(1.5 + 2 * STATUS_PERIOD_S)
         pub.undeclare()
         for s in subs:
             s.undeclare()
 
-    first = int(args.warmup * args.rate)
     measured = range(first, n_total)
     result: dict = {
         "load_avg_1m": os.getloadavg()[0],
@@ -190,6 +220,12 @@ def run(args: argparse.Namespace) -> dict:
     result["drops"] = service_drops(statuses)
     result["drops_total"] = path_drops(result["drops"])
     result["observer_gaps"] = observer.count("gaps")
+    # Where the time goes, independent of how busy the machine is: each process's CPU time per frame
+    # sent over the measured frames (the bench: encoding, publishing and observing them).
+    n_measured = max(1, len(measured))
+    result["cpu_ms_per_frame"] = {
+        h: None if cpu0.get(h) is None or cpu1[h] is None else (cpu1[h] - cpu0[h]) * 1e3 / n_measured for h in pids
+    }
     result["service_status"] = {
         k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
     }

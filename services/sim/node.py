@@ -37,6 +37,10 @@ STATE_SAVE_PERIOD = 0.25
 VELOCITY_LOG_PERIOD = 5.0
 #: Commands queued for the lock-step clock before the oldest is dropped.
 LOCKSTEP_QUEUE = 10000
+#: ``--state-on-command``: after a state published on a command, the next periodic one is due this
+#: many state periods later. Commands at the state rate then publish one state each instead of
+#: racing the periodic clock on their jitter (a periodic state, then the command's a moment later).
+STATE_IDLE_PERIODS = 1.5
 
 
 def parse_follow(payload: bytes) -> str:
@@ -235,7 +239,7 @@ class SimNode:
             sleep = dt - ((now - wall0) - (core.time - sim0))
             if self._apply(self.commands.take(timeout=sleep if sleep > 0 else None)) and self.state_on_command:
                 self._publish()
-                next_pub = core.time + self.state_period
+                next_pub = core.time + STATE_IDLE_PERIODS * self.state_period
 
     def run_lockstep(self, stop: threading.Event) -> None:
         """Advance ``lockstep_dt`` per command, as fast as commands come, until ``stop``."""

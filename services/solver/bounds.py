@@ -58,6 +58,12 @@ class JointBounds:
         self.lb = np.empty(n)
         self.ub = np.empty(n)
         self._t = np.empty(n)
+        self._t2 = np.empty(n)
+        self._d = np.empty((2, n))  # distances to the stop below and above (``brake_both``)
+        self._amax_dt = np.empty(n)  # a_max dt of the last dt
+        self._amax_dt_for = None
+        self._free = np.empty(n)  # distance to a stop beyond which braking allows more than vmax (``braking_free``)
+        self._free_for: tuple[float, float] | None = None
 
     def compute(
         self,
@@ -78,19 +84,58 @@ class JointBounds:
             raise ValueError(f"dt must be > 0, got {dt}")
         lb, ub, t = self.lb, self.ub, self._t
         if window is not None:
-            lb[:] = self.brake(q - window[0], dt, neg=True)
-            ub[:] = self.brake(window[1] - q, dt)
+            lo, hi = self.brake_both(q - window[0], window[1] - q, dt)
+            lb[:] = lo
+            ub[:] = hi
         else:
             lb.fill(-np.inf)
             ub.fill(np.inf)
-        np.multiply(self.amax, dt, out=t)
-        self._intersect(qd_prev - t, qd_prev + t)
-        self._intersect(self.brake(q - self.lower, dt, neg=True), self.brake(self.upper - q, dt))
+        if dt != self._amax_dt_for:
+            np.multiply(self.amax, dt, out=self._amax_dt)
+            self._amax_dt_for = dt
+        np.subtract(qd_prev, self._amax_dt, out=t)
+        self._intersect(t, np.add(qd_prev, self._amax_dt, out=self._t2))
+        d = self._d
+        below, above = np.subtract(q, self.lower, out=d[0]), np.subtract(self.upper, q, out=d[1])
+        if not self.braking_free(d, dt):
+            # Near a stop: the braking bound is tighter than vmax somewhere. Far from every stop it is looser
+            # than vmax on both sides, and the velocity clamp below gives exactly the same box without it.
+            self._intersect(*self.brake_both(below, above, dt))
         self._intersect(self._neg_vmax, self.vmax)
         return lb, ub
 
+    def braking_free(self, distances: np.ndarray, dt: float, decel: float = 1.0) -> bool:
+        """True when every distance (k, n) [rad] to a stop is so large that ``brake`` allows more than vmax there.
+
+        ``brake(d) >= vmax`` exactly when ``d >= vmax dt + vmax^2 / (2 decel a_max)``; the test keeps a 1 % margin
+        over that, far above round-off, so a True answer never hides a braking bound tighter than vmax.
+        """
+        key = (dt, decel)
+        if key != self._free_for:
+            np.multiply(self.vmax, dt, out=self._free)
+            self._free += self.vmax * self.vmax / (2.0 * decel * self.amax)
+            self._free *= 1.01
+            self._free_for = key
+        return bool((distances > self._free).all())
+
+    def brake_both(
+        self, below: np.ndarray, above: np.ndarray, dt: float, decel: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(brake(below, dt, neg=True), brake(above, dt))`` (n,) each, in one pass over both sides (views of an
+        internal buffer, valid until the next call): the velocity window between a stop ``below`` [rad] under q and
+        one ``above`` over it."""
+        d = self._d
+        if below is not d[0]:
+            d[0] = below
+        if above is not d[1]:
+            d[1] = above
+        out = self.brake(d, dt, decel=decel)
+        np.negative(out[0], out=out[0])
+        return out[0], out[1]
+
     def brake(self, distance: np.ndarray, dt: float, neg: bool = False, decel: float = 1.0) -> np.ndarray:
-        """Fastest qd (n,) [rad/s] towards a stop ``distance`` (n,) [rad] away that can still stop before it.
+        """Fastest qd (n,) [rad/s] towards a stop ``distance`` (n,) [rad] away that can still stop before it
+        (distance may also be (k, n): one row per stop).
 
         A negative distance (already past it) asks to come back in one step. ``neg`` returns the bound
         for a stop below q (the negated speed). ``decel``: the fraction of a_max the braking may use.

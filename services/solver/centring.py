@@ -79,7 +79,8 @@ class RangeCentringTask(Task):
 
     def compute_error(self, configuration: Configuration) -> np.ndarray:
         qj = configuration.q[self.joints]
-        np.subtract(np.clip(qj, self.inner_lower, self.inner_upper), qj, out=self._err)
+        # np.clip's dispatch costs several times minimum(maximum()) on a few joints; the same values.
+        np.subtract(np.minimum(np.maximum(qj, self.inner_lower), self.inner_upper), qj, out=self._err)
         return self._err
 
     def compute_jacobian(self, configuration: Configuration) -> np.ndarray:

@@ -255,6 +255,7 @@ class SolverCore:
             "smoothing_limited": 0,
             "resyncs": 0,
             "qp_calls": 0,
+            "qp_fallbacks": 0,  # QPs DAQP failed on and PIQP solved (see DaqpBackend.fallback)
             "policy_ticks": 0,
             "gate_closed": 0,
         }
@@ -517,8 +518,9 @@ class SolverCore:
             ineq.relax_to(np.minimum(np.maximum(0.0, lb), ub))
             sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
         self.counts["qp_calls"] += sol.qp_calls
+        self.counts["qp_fallbacks"] = getattr(getattr(self.algorithm, "backend", None), "fallbacks", 0)
         qd, reason = self._checked_velocity(sol, lb, ub)
-        status, reason = self._status(sol, held, reason)
+        status, reason = self._status(qd, sol, held, reason)
         self._integrate(qd, dt)
         self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
@@ -546,20 +548,23 @@ class SolverCore:
         )
 
     def _checked_velocity(self, sol: Solution, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """The solution's qd within [lb, ub], or None when it failed; the reason text so far."""
-        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+        """The solution's qd within [lb, ub], or None when it failed (not ok or not finite); the reason text so far."""
+        if not sol.ok or not np.isfinite(sol.qd).all():
             self.counts["failed"] += 1
             return None, sol.reason or "solution not finite"
         qd = sol.qd
         reason = sol.reason
-        if ((qd < lb - 1e-9) | (qd > ub + 1e-9)).any():
+        clipped = np.minimum(np.maximum(qd, lb), ub)
+        # Beyond 1e-9 rad/s of the box is a safety clamp (the algorithms stay inside it up to round-off).
+        if np.abs(clipped - qd).max() > 1e-9:
             self.counts["safety_clamps"] += 1
             reason = (reason + "; " if reason else "") + "safety clamp"
-        return np.minimum(np.maximum(qd, lb), ub), reason
+        return clipped, reason
 
-    def _status(self, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
-        """Command status and its reason: failed, held, infeasible (level-1 residual) or ok."""
-        if not sol.ok or not np.all(np.isfinite(sol.qd)):
+    def _status(self, qd: np.ndarray | None, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
+        """Command status and its reason: failed (qd None, see ``_checked_velocity``), held, infeasible (level-1
+        residual) or ok."""
+        if qd is None:
             return "failed", reason
         if held:
             return "held", "; ".join([*held, reason] if reason else held)
@@ -634,7 +639,10 @@ class SolverCore:
             if s.held:
                 held.append(task.frame)
         self._aim_poses(self.orientation_tasks, samples, self.config.wrist_orientation_cost)
-        elbow_rotation = self._aim_poses(self.elbow_orientation_tasks, samples, self.config.elbow_orientation_cost)
+        # The elbow pose tasks are aimed only on the ticks a level holds them (a target asks for rotation).
+        elbow_rotation = any(
+            s is not None and s.use_rotation for s in (samples[t.frame] for t in self.elbow_orientation_tasks)
+        ) and self._aim_poses(self.elbow_orientation_tasks, samples, self.config.elbow_orientation_cost)
         # Elbow orientation rows only while a target asks for them: the plain levels keep their size.
         self.levels = self._levels_elbow_poses if elbow_rotation else self._levels_position_elbows
         why: list[str] = []

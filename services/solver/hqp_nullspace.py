@@ -27,7 +27,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
-from services.solver.base import QP_BOUND_TOL, LevelProblem, Solution, clip, violation, within
+from services.solver.base import FEASIBLE_TOL, QP_BOUND_TOL, LevelProblem, Solution, clip, violation, within
 from services.solver.cascade import RETRY_EPS, CascadeQp
 from services.solver.inequalities import level_rows
 from services.solver.linalg import split_row_space
@@ -61,6 +61,9 @@ class HqpNullspace(CascadeQp):
         # box is a narrow band around the last velocity, and the zero-velocity side of it would push the
         # unconstrained optimum out of it (a QP on every tick instead of a few).
         mid = p.mid
+        # The box widened by the feasibility tolerance, once for every level's shortcut check (``within``).
+        lo_tol = lb - FEASIBLE_TOL
+        hi_tol = ub + FEASIBLE_TOL
         Z: np.ndarray | None = None  # None means identity (first level)
         iters = calls = 0
         reason = ""
@@ -76,12 +79,13 @@ class HqpNullspace(CascadeQp):
             c = b - A @ base
             last = k == len(As) - 1
             # The last level needs no null space: its damped optimum comes from the normal equations.
-            split = None if last and self.level_eps(k) > 0 else split_row_space(M)
+            eps = self.level_eps(k)
+            split = None if last and eps > 0 else split_row_space(M)
             xt = None
             if self.shortcut:
-                w = _damped_lstsq(M, c, self.level_eps(k)) if split is None else split.lstsq(c, self.level_eps(k))
+                w = _damped_lstsq(M, c, eps) if split is None else split.lstsq(c, eps)
                 xt = base + (w if Z is None else Z @ w)
-                if not within(xt, lb, ub) or (ineq is not None and not ineq.satisfied(xt)):
+                if ((xt < lo_tol) | (xt > hi_tol)).any() or (ineq is not None and not ineq.satisfied(xt)):
                     xt = None
             if xt is None:
                 rows = level_rows(ineq, Z, base, lb - base, ub - base)

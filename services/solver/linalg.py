@@ -8,8 +8,6 @@ just as well for the null-space bases the hierarchy needs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.linalg import lapack
 
@@ -19,26 +17,50 @@ RANK_RTOL = 1e-9
 RANK_ATOL = 1e-12
 
 
-@dataclass(slots=True)
 class RowSpaceSplit:
     """Column-pivoted QR of M^T for M (m, r): ``M^T P = Q R``.
 
     Attributes:
         rank: numerical rank rho.
-        Q: (r, r) orthogonal; ``Q[:, :rank]`` spans the row space of M,
-            ``Q[:, rank:]`` its null space.
+        M: the (m, r) matrix split.
         R: (k, m) whose upper trapezoid is R, k = min(r, m) (below the diagonal: LAPACK reflectors).
         piv: (m,) 0-based pivot order of the rows of M.
+
+    ``Q`` (r, r) orthogonal (``Q[:, :rank]`` spans the row space of M, ``Q[:, rank:]`` its null space) is
+    formed from the reflectors only when asked for (a caller that only needs the rank does not pay for it).
     """
 
-    rank: int
-    Q: np.ndarray
-    R: np.ndarray
-    piv: np.ndarray
+    __slots__ = ("M", "R", "_Q", "_qr", "_tau", "piv", "rank")
+
+    def __init__(self, rank: int, M: np.ndarray, qr: np.ndarray, piv: np.ndarray, tau=None, Q=None):
+        self.rank = rank
+        self.M = M
+        self.R = qr[: min(qr.shape)]
+        self.piv = piv
+        self._qr = qr  # (r, m): dgeqp3's output, R above the diagonal, the reflectors below
+        self._tau = tau
+        self._Q = Q
+
+    @property
+    def Q(self) -> np.ndarray:
+        """(r, r) orthogonal factor (formed once, on first use)."""
+        if self._Q is None:
+            r = self.M.shape[1]
+            k = min(self._qr.shape)
+            a = np.empty((r, r), order="F")  # dorgqr reads the k reflector columns and sets the rest
+            a[:, :k] = self._qr[:, :k]
+            Q, _work, info = lapack.dorgqr(a, self._tau[:k], overwrite_a=1)
+            if info != 0:
+                raise np.linalg.LinAlgError(f"dorgqr failed with info={info}")
+            self._Q = Q
+        return self._Q
 
     @property
     def null_basis(self) -> np.ndarray:
         """(r, r - rank) orthonormal basis of null(M)."""
+        r = self.M.shape[1]
+        if self.rank == r:
+            return np.empty((r, 0))
         return self.Q[:, self.rank :]
 
     def lstsq(self, c: np.ndarray, damping: float = 0.0) -> np.ndarray:
@@ -49,7 +71,7 @@ class RowSpaceSplit:
         near singular configurations. Only the rank-revealed row space is used.
         """
         rho = self.rank
-        r = self.Q.shape[0]
+        r = self.M.shape[1]
         if rho == 0:
             return np.zeros(r)
         cp = c[self.piv]
@@ -72,20 +94,14 @@ def split_row_space(M: np.ndarray) -> RowSpaceSplit:
     """Rank-revealing split of the row space and null space of M (m, r)."""
     m, r = M.shape
     if m == 0 or r == 0:
-        return RowSpaceSplit(0, np.eye(r), np.zeros((0, m)), np.arange(m))
-    qr, jpvt, tau, _work, info = lapack.dgeqp3(np.asfortranarray(M.T))
+        return RowSpaceSplit(0, M, np.zeros((r, m)), np.arange(m), Q=np.eye(r))
+    qr, jpvt, tau, _work, info = lapack.dgeqp3(M.T)  # M.T of a C-ordered M is Fortran-ordered: no copy
     if info != 0:
         raise np.linalg.LinAlgError(f"dgeqp3 failed with info={info}")
-    k = min(r, m)
-    d = np.abs(np.diagonal(qr)[:k])
-    top = d[0] if k else 0.0
+    d = np.abs(qr.diagonal())  # min(r, m) pivots, non-increasing
+    top = d[0]
     rank = 0 if top <= RANK_ATOL else int(np.count_nonzero(d > RANK_RTOL * top))
-    a = np.zeros((r, r), order="F")
-    a[:, :k] = qr[:, :k]
-    Q, _work, info = lapack.dorgqr(a, tau[:k], overwrite_a=1)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"dorgqr failed with info={info}")
-    return RowSpaceSplit(rank, Q, qr[:k], jpvt - 1)
+    return RowSpaceSplit(rank, M, qr, jpvt - 1, tau)
 
 
 _MASKS: dict[tuple[int, int], np.ndarray] = {}

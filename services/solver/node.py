@@ -47,6 +47,14 @@ def config_from_args(args: argparse.Namespace) -> SolverConfig:
     return shared_config.config_from_args(SolverConfig, args)
 
 
+#: ``--trigger event``: after a tick on new targets, the next tick without targets is due this many
+#: periods later (after one without, one period). A stream at the control rate then ticks once per
+#: target instead of racing the clock on its jitter (a tick on the deadline, then one on the target
+#: a moment later: twice the solver work, commands and states); below the core's MAX_STEP_TICKS, so
+#: a stream that stops still ticks before any motion is lost to the core's step clamp.
+EVENT_IDLE_PERIODS = 1.5
+
+
 class TickClock:
     """When the next tick is due: on a fixed period, or also on every target arrival (``event``).
 
@@ -69,10 +77,10 @@ class TickClock:
             time.sleep(delay)
         return targets.take()
 
-    def ticked(self, t: float) -> None:
-        """Schedule the deadline after a tick at t [s] (monotonic)."""
+    def ticked(self, t: float, on_targets: bool = False) -> None:
+        """Schedule the deadline after a tick at t [s] (monotonic); ``on_targets``: it had new targets."""
         if self.event:
-            self.next_t = t + self.period
+            self.next_t = t + self.period * (EVENT_IDLE_PERIODS if on_targets else 1.0)
             return
         self.next_t += self.period
         if self.next_t < t:
@@ -142,7 +150,9 @@ def run(args: argparse.Namespace) -> int:
     with ServiceRunner("solver", args, instance=args.solver_id) as svc:
         log = svc.log
         targets = svc.subscribe_latest(svc.keys.targets, TaskTargets.decode, stream="targets")
-        states = svc.subscribe_latest(svc.keys.sim_state, RobotState.decode, stream="sim_state")
+        # Only the newest state matters, and only when a tick starts: the tick drains the ring itself
+        # (no receiver thread waking up, and taking the GIL, for every state between ticks).
+        states = svc.subscribe_reader(svc.keys.sim_state, RobotState.decode, stream="sim_state")
         pub = svc.publisher(svc.keys.command(args.solver_id))
         svc.status.state = "holding"
         # A solver started mid-stream continues from where the robot is: wait briefly for its state.
@@ -175,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
             cmd = core.step(msg, measured_joints(state, joint_map, args.solver_id), t)
             svc.publish(pub, cmd, stream="commands")
             stats.add(svc, cmd, core, clock)
-            clock.ticked(t)
+            clock.ticked(t, msg is not None)
         # The last status (published on exit) carries the final counts, however few ticks ran.
         svc.status.extra.update({k: float(v) for k, v in core.counts.items()})
     return 0

@@ -126,6 +126,9 @@ class DaqpBackend(QpBackend):
         # eps_prox = 0: the callers regularise H themselves; DAQP's automatic proximal term would blur the optimum.
         self.settings = {"primal_tol": primal_tol, "dual_tol": dual_tol, "iter_limit": iter_limit, "eps_prox": 0.0}
         self.eq_band = eq_band
+        #: solver asked when DAQP fails (None: report the failure); solves it rescued
+        self.fallback: QpBackend | None = PiqpBackend()
+        self.fallbacks = 0
         self._empty: dict[int, np.ndarray] = {}
         self._sense: dict[int, np.ndarray] = {}
 
@@ -168,6 +171,14 @@ class DaqpBackend(QpBackend):
             np.ascontiguousarray(H), f, np.ascontiguousarray(A), bu, bl, sn, **self.settings
         )
         ok = flag in (1, 2) and bool(np.isfinite(x).all())
+        if not ok and self.fallback is not None:
+            # DAQP can call a feasible problem infeasible (cycling on the degenerate active sets
+            # of a stacked HQP level; seen on a real clip: inputs perturbed by 1e-8 solve). An
+            # interior-point solve decides before the caller drops the level.
+            again = self.fallback.solve(H, f, lb, ub, G, gl, gu, E, e, key=f"daqp-fallback/{key}")
+            if again.ok:
+                self.fallbacks += 1
+                return QpResult(again.x, True, again.iters, f"exitflag {flag}, solved by {self.fallback.name}")
         return QpResult(np.asarray(x, dtype=float), ok, int(info.get("iterations", 0)), f"exitflag {flag}")
 
     def _zeros(self, m: int) -> np.ndarray:

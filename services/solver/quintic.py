@@ -90,6 +90,13 @@ class QuinticSmoother:
         self._Y = np.zeros((6, n))  # limited quantities of the next state (see _limit)
         self._lo = np.zeros((6, n))
         self._hi = np.zeros((6, n))
+        self._limits_for: float | None = None  # the step s the s-dependent rows of _lo, _hi were set for
+        self._dist = np.empty((2, n))  # distances to the stops below and above
+        self._vmax_rows = False  # the velocity rows of _lo, _hi hold +-vmax (no braking bound tighter)
+        if limits is not None:
+            self._lo[0], self._hi[0] = limits.lower, limits.upper
+            self._hi[2] = limits.amax
+            np.negative(limits.amax, out=self._lo[2])
 
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
@@ -148,7 +155,7 @@ class QuinticSmoother:
         np.multiply(qd_raw, self.T - self.dt, out=S[3])
         S[3] += q_raw
         S[4] = qd_raw
-        nxt = K @ S
+        nxt = np.matmul(K, S, out=self._Y[:3])
         self.limited = 0
         if self.limits is None:
             S[:3] = nxt
@@ -159,25 +166,35 @@ class QuinticSmoother:
         """Take the next state nxt (3, n) or the nearest one along the segment-end line that respects the limits."""
         lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
-        # Quantities limited at the next state, all affine in the segment end: p, dp, v, dv, a, v + a s / 2.
-        y[0] = nxt[0]
-        np.subtract(nxt[0], p0, out=y[1])
-        y[2] = nxt[1]
-        np.subtract(nxt[1], v0, out=y[3])
-        y[4] = nxt[2]
+        # Quantities limited at the next state, all affine in the segment end (rows: p, v, a, dp, dv,
+        # v + a s / 2); nxt was computed into y[:3] (``_advance``).
+        np.subtract(y[0], p0, out=y[3])
+        np.subtract(y[1], v0, out=y[4])
         # Velocity half a step ahead: a state at its velocity bound must not still accelerate outwards.
-        np.multiply(nxt[2], 0.5 * s, out=y[5])
-        y[5] += nxt[1]
-        lo[0], hi[0] = lim.lower, lim.upper
-        np.multiply(lim.vmax, s, out=hi[1])
-        np.negative(hi[1], out=lo[1])
-        np.maximum(lim.brake(p0 - lim.lower, s, neg=True, decel=BRAKE_DECEL), -lim.vmax, out=lo[2])
-        np.minimum(lim.brake(lim.upper - p0, s, decel=BRAKE_DECEL), lim.vmax, out=hi[2])
-        np.multiply(lim.amax, s, out=hi[3])
-        np.negative(hi[3], out=lo[3])
-        hi[4] = lim.amax
-        np.negative(hi[4], out=lo[4])
-        lo[5], hi[5] = lo[2], hi[2]
+        np.multiply(y[2], 0.5 * s, out=y[5])
+        y[5] += y[1]
+        if s != self._limits_for:
+            # The rows that depend on s only (p and a bounds are constant, set in __init__).
+            np.multiply(lim.vmax, s, out=hi[3])
+            np.negative(hi[3], out=lo[3])
+            np.multiply(lim.amax, s, out=hi[4])
+            np.negative(hi[4], out=lo[4])
+            self._limits_for = s
+        d = self._dist
+        np.subtract(p0, lim.lower, out=d[0])
+        np.subtract(lim.upper, p0, out=d[1])
+        if lim.braking_free(d, s, BRAKE_DECEL):
+            # Far from every stop the braking bound allows more than vmax: the velocity rows are +-vmax exactly.
+            if not self._vmax_rows:
+                lo[1], hi[1] = lim._neg_vmax, lim.vmax
+                lo[5], hi[5] = lo[1], hi[1]
+                self._vmax_rows = True
+        else:
+            below, above = lim.brake_both(d[0], d[1], s, decel=BRAKE_DECEL)
+            np.maximum(below, lim._neg_vmax, out=lo[1])
+            np.minimum(above, lim.vmax, out=hi[1])
+            lo[5], hi[5] = lo[1], hi[1]
+            self._vmax_rows = False
         bad = ((y < lo) | (y > hi)).any(axis=0)
         if not bad.any():
             S[:3] = nxt
@@ -188,7 +205,7 @@ class QuinticSmoother:
         dp1 = S[3, idx] - (p0[idx] + v0[idx] * self.T)
         dv1 = S[4, idx] - v0[idx]
         dnxt = np.outer(K[:, 3], dp1) + np.outer(K[:, 4], dv1)  # (3, k): next state per unit lambda
-        dy = np.stack([dnxt[0], dnxt[0], dnxt[1], dnxt[1], dnxt[2], dnxt[1] + 0.5 * s * dnxt[2]])
+        dy = np.stack([dnxt[0], dnxt[1], dnxt[2], dnxt[0], dnxt[1], dnxt[1] + 0.5 * s * dnxt[2]])
         y0 = y[:, idx] - dy  # next-state quantities at lambda = 0
         lam_hi, lam_lo = _interval(y0[:5], dy[:5], lo[:5, idx], hi[:5, idx])
         # The look-ahead row only where it is compatible with the limits proper.
@@ -217,7 +234,7 @@ class QuinticSmoother:
         lo_p = np.maximum(lim.lower[idx], p0 - step)
         hi_p = np.minimum(lim.upper[idx], p0 + step)
         S[0, idx] = np.minimum(np.maximum(S[0, idx], lo_p), hi_p)
-        S[1, idx] = np.minimum(np.maximum(S[1, idx], self._lo[2, idx]), self._hi[2, idx])
+        S[1, idx] = np.minimum(np.maximum(S[1, idx], self._lo[1, idx]), self._hi[1, idx])
         S[2, idx] = np.clip(S[2, idx], -lim.amax[idx], lim.amax[idx])
         return int(idx.size)
 

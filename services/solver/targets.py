@@ -56,6 +56,10 @@ class TargetTracker:
         self.last_rx: float | None = None
         self.hdr = Header(0, 0.0, 0)
         self.invalid_count = 0
+        # Samples of the current solver time: a tick asks for a name more than once (the posture level
+        # and the tasks), and the extrapolation (an exp3 per rotating target) is the same each time.
+        self._memo: dict[str, TargetSample | None] = {}
+        self._memo_t: float | None = None
 
     @property
     def started(self) -> bool:
@@ -70,6 +74,7 @@ class TargetTracker:
         """Take a new message received at solver time t [s]."""
         self.last_rx = t
         self.hdr = msg.hdr
+        self._memo_t = None
         for name, tg in msg.targets.items():
             if name not in self.names:
                 continue
@@ -84,9 +89,20 @@ class TargetTracker:
                     # Freeze where the extrapolation had got to, at rest.
                     s = self.sample(name, t)
                     self._store[name] = _Stored(s.p, s.R, np.zeros(3), np.zeros(3), old.use_rotation, t, True)
+                    self._memo_t = None
 
     def sample(self, name: str, t: float) -> TargetSample | None:
-        """Target ``name`` at solver time t [s], or None if it never was valid."""
+        """Target ``name`` at solver time t [s], or None if it never was valid (shared until the next update or
+        time: do not write into it)."""
+        if t != self._memo_t:
+            self._memo.clear()
+            self._memo_t = t
+        elif name in self._memo:
+            return self._memo[name]
+        out = self._memo[name] = self._sample(name, t)
+        return out
+
+    def _sample(self, name: str, t: float) -> TargetSample | None:
         s = self._store.get(name)
         if s is None:
             return None

@@ -29,12 +29,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
+import daqp
 import numpy as np
 
-from services.solver.qp import QpBackend, make_backend
-from shared.kinematics.mobile_arm import ALPHA, BASE, NQ, MobileArmKinematics
+from services.solver.qp import DaqpBackend, QpBackend, QpResult, make_backend
+from shared.kinematics.mobile_arm import ALPHA, NQ, MobileArmKinematics
 
 #: Joint names of the 7 generalised coordinates, as they travel in a JointCommand.
 Q_NAMES = ("base_x", "base_y", "base_z", "base_yaw", "arm_j1", "arm_j2", "arm_j3")
@@ -66,7 +67,8 @@ class WbqpConfig:
             forbids for the torso and the hand equality passes on to the arm: on mocap targets the
             torso height hit its limit and the arm whipped at 100 rad/s. So the velocity towards
             a limit is also bounded: ``q̇' <= sqrt(2 brake (q_hi - q))`` (and the mirror).
-        qp: QP backend (``daqp`` default: on this 7-variable QP it costs about 0.8x PIQP's CPU time; ``piqp``).
+        qp: QP backend for the ticks where a bound is active (``daqp`` default: on this 7-variable QP
+            it costs about 0.8x PIQP's CPU time; ``piqp``).
         eq_tol: relative residual of eq. 8 (times 1 + ||b||) above which the hard-equality solve counts as failed.
     """
 
@@ -104,9 +106,13 @@ class WbqpResult:
     Attributes:
         qdd: (7,) planned q̈. status: ``ok`` (hard equality held) or ``infeasible`` (section 4.1
             fallback) or ``failed`` (no QP solution: q̈ brakes within the limits). reason: why, when not ok.
-        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations. solve_ms: build + solve wall time [ms].
+        ee_residual: ||J_a q̈ - b|| [m/s^2]. iters: QP iterations (0: closed form, no bound active).
+        solve_ms: wall time of the whole planner tick [ms]: hand kinematics (p, J_a, J̇_a q̇), the
+            reference, objective and constraints, the QP solve(s) and the integration (eq. 7) into
+            ``q_next``, ``qd_next``.
         pref_acc: (3,) P̈ref of eq. 10 [m/s^2]. cpu_ms: the same span in this thread's CPU time [ms]
             (what the tick costs, without the time the OS gave other processes).
+        q_next, qd_next: (7,) the state after the tick, eq. 7 applied to qdd [m, rad; m/s, rad/s].
     """
 
     qdd: np.ndarray
@@ -115,12 +121,18 @@ class WbqpResult:
     ee_residual: float
     iters: int
     solve_ms: float
-    pref_acc: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    cpu_ms: float = 0.0
+    pref_acc: np.ndarray
+    cpu_ms: float
+    q_next: np.ndarray
+    qd_next: np.ndarray
 
 
 class WbqpAccel:
     """Seed 002's planner: one QP in q̈ per tick (see the module docstring).
+
+    The tick is built from plain floats (:meth:`MobileArmKinematics.evaluate_scalars`, the bounds and
+    rows below) and handed to the QP solver as a few small arrays: at 7 variables, numpy's per-call
+    overhead (~1 us per small-array operation), not arithmetic, was most of the tick.
 
     Args:
         kin: hand kinematics in the 7-D coordinates.
@@ -153,6 +165,17 @@ class WbqpAccel:
         self.R = np.diag(cfg.r_weight)
         self.eps = np.asarray(cfg.eps, dtype=float)
         self.qdd_prev = np.zeros(NQ)
+        # Per coordinate, for box(): limits, damper deceleration, |ẍ|, |ÿ| bound (0: none), eq. 13's ε (0: none).
+        amax = [cfg.base_acc_max] * 2 + [0.0] * (NQ - 2)
+        eps = list(cfg.eps) + [0.0] * (NQ - 4)
+        self._box_consts = list(zip(self.lower.tolist(), self.upper.tolist(), self._brake.tolist(), amax, eps))
+        self._f_gain = [2.0 * r / cfg.dt for r in cfg.r_weight]  # f = 2 R q̇ / Δt (see solve)
+        self._reg = self.backend.regularization * np.eye(NQ)
+        self._H = 2.0 * self.R + self._reg  # the hard-equality QP's Hessian never changes (diagonal)
+        self._h_inv = (1.0 / np.diag(self._H)).tolist()
+        # DAQP is called directly (see _solve_equality); any other backend through its interface.
+        self._daqp = isinstance(self.backend, DaqpBackend)
+        self._sense = np.zeros(NQ + 4, dtype=np.int32)
 
     def reset(self, qdd: np.ndarray | None = None) -> None:
         """Forget the previous acceleration (eq. 13's q̈_pre), e.g. after a restart."""
@@ -168,40 +191,44 @@ class WbqpAccel:
         cfg = self.config
         return a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - v), p, v
 
-    def box(self, q: np.ndarray, qd: np.ndarray, with_eq13: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds (lo, hi) (7,) on q̈ from eq. 11 (prediction in the limits), eq. 13 (torso rows) and the
-        two additions of :class:`WbqpConfig` (``brake``, ``base_acc_max``).
+    def box(self, q: list[float], qd: list[float], with_eq13: bool = True) -> tuple[list[float], list[float]]:
+        """Bounds (lo, hi) [7] on q̈ from eq. 11 (prediction in the limits), eq. 13 (torso rows) and the
+        two additions of :class:`WbqpConfig` (``brake``, ``base_acc_max``); q, qd: 7 floats each.
 
         The damper counts as part of the position limits: where it and eq. 13 disagree, it wins
         (eq. 13 would let the coordinate reach its limit too fast to stop there but in one tick).
         """
         dt = self.config.dt
-        lo = (self.lower - q - qd * dt) / (dt * dt)
-        hi = (self.upper - q - qd * dt) / (dt * dt)
-        # Velocity damper (WbqpConfig.brake): room to stop with the given deceleration.
-        br = self._brake
-        v_hi = np.sqrt(2.0 * br * np.maximum(self.upper - q, 0.0))
-        v_lo = -np.sqrt(2.0 * br * np.maximum(q - self.lower, 0.0))
-        hi = np.where(br > 0, np.minimum(hi, (v_hi - qd) / dt), hi)
-        lo = np.where(br > 0, np.maximum(lo, (v_lo - qd) / dt), lo)
-        lo[:2] = np.maximum(lo[:2], -self.config.base_acc_max)
-        hi[:2] = np.minimum(hi[:2], self.config.base_acc_max)
-        # Joints already past a limit (measured state): the bounds cross; brake back towards the box.
-        crossed = lo > hi
-        if crossed.any():
-            mid = np.where(q > self.upper, hi, lo)
-            lo[crossed] = hi[crossed] = mid[crossed]
-        if with_eq13:
-            lo_b = np.maximum(lo[BASE], self.qdd_prev[BASE] - self.eps)
-            hi_b = np.minimum(hi[BASE], self.qdd_prev[BASE] + self.eps)
-            # Where eq. 13 and eq. 11 disagree, the position limit wins (a box must never be left).
-            ok = lo_b <= hi_b
-            lo[BASE] = np.where(ok, lo_b, lo[BASE])
-            hi[BASE] = np.where(ok, hi_b, hi[BASE])
-        return lo, hi
+        dt2 = dt * dt
+        prev = self.qdd_prev.tolist()
+        lo_out, hi_out = [], []
+        for qk, vk, pk, (L, U, br, amax, eps) in zip(q, qd, prev, self._box_consts):
+            lo = (L - qk - vk * dt) / dt2
+            hi = (U - qk - vk * dt) / dt2
+            if br > 0.0:
+                # Velocity damper (WbqpConfig.brake): room to stop with the given deceleration.
+                h = (math.sqrt(2.0 * br * (U - qk if qk < U else 0.0)) - vk) / dt
+                g = (-math.sqrt(2.0 * br * (qk - L if qk > L else 0.0)) - vk) / dt
+                hi = h if h < hi else hi
+                lo = g if g > lo else lo
+            if amax > 0.0:  # WbqpConfig.base_acc_max on ẍ, ÿ
+                lo = -amax if lo < -amax else lo
+                hi = amax if hi > amax else hi
+            if lo > hi:
+                # Already past a limit (measured state): the bounds cross; brake back towards the box.
+                lo = hi = hi if qk > U else lo
+            if with_eq13 and eps > 0.0:
+                lo_b = pk - eps if pk - eps > lo else lo
+                hi_b = pk + eps if pk + eps < hi else hi
+                # Where eq. 13 and eq. 11 disagree, the position limit wins (a box must never be left).
+                if lo_b <= hi_b:
+                    lo, hi = lo_b, hi_b
+            lo_out.append(lo)
+            hi_out.append(hi)
+        return lo_out, hi_out
 
-    def nonholonomic_row(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
-        """(row (7,), rhs): ``row @ q̈ = rhs`` makes the predicted lateral velocity zero (eq. 12, velocity form).
+    def nonholonomic_row(self, q: list[float], qd: list[float]) -> tuple[list[float], float]:
+        """(row [7], rhs): ``row @ q̈ = rhs`` makes the predicted lateral velocity zero (eq. 12, velocity form).
 
         Lateral velocity after the tick: ``-sin(α') (ẋ + ẍ Δt) + cos(α') (ẏ + ÿ Δt)`` with
         ``α' = α + α̇ Δt + α̈ Δt^2``; linear in ẍ, ÿ and (to first order) α̈.
@@ -209,10 +236,8 @@ class WbqpAccel:
         dt = self.config.dt
         a = q[ALPHA] + qd[ALPHA] * dt  # α' at α̈ = 0
         s, c = math.sin(a), math.cos(a)
-        row = np.zeros(NQ)
-        row[0], row[1] = -s * dt, c * dt
         # The predicted heading also moves with α̈ (by α̈ Δt^2): linearised about α̈ = 0.
-        row[ALPHA] = -(c * qd[0] + s * qd[1]) * dt * dt
+        row = [-s * dt, c * dt, 0.0, -(c * qd[0] + s * qd[1]) * dt * dt, 0.0, 0.0, 0.0]
         return row, s * qd[0] - c * qd[1]
 
     # ------------------------------------------------------------------ tick
@@ -225,80 +250,207 @@ class WbqpAccel:
         v_d: np.ndarray | None = None,
         a_d: np.ndarray | None = None,
     ) -> WbqpResult:
-        """Plan q̈ (7,) for this tick from q_pre = q (7,), q̇_pre = qd (7,) and the hand's desired motion.
+        """Plan q̈ (7,) for this tick from q_pre = q (7,), q̇_pre = qd (7,) and the hand's desired motion,
+        and integrate it (eq. 7) into ``q_next``, ``qd_next``; ``solve_ms``/``cpu_ms`` time all of it.
 
         Args:
             q, qd: current generalised position [m, rad] and velocity [m/s, rad/s].
             p_d, v_d, a_d: desired hand position, velocity, acceleration in Σw (3,) [m, m/s, m/s^2].
         """
-        c0 = time.thread_time()  # first: its own cost (~10 us here) stays out of the wall figure
+        c0 = time.thread_time()  # first: its own cost (~1 us) stays out of the wall figure
         t0 = time.perf_counter()
         cfg = self.config
         dt = cfg.dt
-        v_d = np.zeros(3) if v_d is None else v_d
-        a_d = np.zeros(3) if a_d is None else a_d
-        p, J, jdqd = self.kin.evaluate(q, qd)
-        pref = a_d + cfg.kp * (p_d - p) + cfg.kd * (v_d - J @ qd)  # eq. 10
-        b = pref - jdqd  # eq. 9
-        lo, hi = self.box(q, qd)
-        nh_row, nh_rhs = self.nonholonomic_row(q, qd)
+        ql, qdl = q.tolist(), qd.tolist()
+        pd_l = p_d.tolist()
+        vd_l = (0.0, 0.0, 0.0) if v_d is None else v_d.tolist()
+        ad_l = (0.0, 0.0, 0.0) if a_d is None else a_d.tolist()
+        p, J, jdqd = self.kin.evaluate_scalars(ql, qdl)
+        kp, kd = cfg.kp, cfg.kd
+        pref = []
+        b = []
+        for i in range(3):
+            Ji = J[i]
+            v = Ji[0] * qdl[0] + Ji[1] * qdl[1] + Ji[2] * qdl[2] + Ji[3] * qdl[3]
+            v += Ji[4] * qdl[4] + Ji[5] * qdl[5] + Ji[6] * qdl[6]
+            a = ad_l[i] + kp * (pd_l[i] - p[i]) + kd * (vd_l[i] - v)  # eq. 10
+            pref.append(a)
+            b.append(a - jdqd[i])  # eq. 9
+        lo, hi = self.box(ql, qdl)
+        nh_row, nh_rhs = self.nonholonomic_row(ql, qdl)
         # Objective eq. 6 with eq. 7 (Δq = Δt q̇ + Δt^2 q̈), as 0.5 q̈ᵀ H q̈ + fᵀ q̈:
         #   (b - J q̈)ᵀ Q (b - J q̈) + (Δt q̇ + Δt^2 q̈)ᵀ R (Δt q̇ + Δt^2 q̈).
         # On the feasible set of eq. 8 the first term is identically 0, so the hard-equality QP
         # keeps only the R term (divided by Δt^4: the same minimiser, a well-scaled H):
         #   H = 2 R, f = 2 R q̇ / Δt.
-        reg = self.backend.regularization * np.eye(NQ)
-        H = 2.0 * self.R + reg
-        f = 2.0 * (self.R @ qd) / dt
-        nh_E, nh_e = nh_row[None, :] / dt, np.array([nh_rhs / dt])
-        E = np.vstack([J, nh_E])
-        e = np.r_[b, nh_e]
-        res = self.backend.solve(H, f, lo, hi, E=E, e=e, key="wbqp-eq")
+        f = [g * v for g, v in zip(self._f_gain, qdl)]
+        nh_E = [x / dt for x in nh_row]
+        nh_e = nh_rhs / dt
+        res = self._solve_equality(f, lo, hi, [*J, nh_E], [*b, nh_e])
         status, reason = "ok", ""
-        resid = math.inf
-        if res.ok:
-            resid = float(np.linalg.norm(J @ res.x - b))
-        if not res.ok or resid > cfg.eq_tol * (1.0 + float(np.linalg.norm(b))):
-            # Section 4.1: the end-effector task as objective, the other constraints kept. Eq. 6
-            # weighs the two terms as (Q, Δt^4 R): the hand term dominates by ~1e12, which no QP
-            # solver resolves in one H (the R part drowns in its regularisation). Solved as its
-            # limit instead, in two well-scaled QPs: the best hand acceleration first, then the
-            # R term with that hand acceleration held.
-            eq_status = res.status if not res.ok else f"equality residual {resid:.3g}"
-            JtQ = J.T @ self.Q
-            H2 = 2.0 * (JtQ @ J) + reg
-            f2 = -2.0 * (JtQ @ b)
-            relaxed = ""
-            res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
-            if not res.ok:
-                # Eq. 13 against eq. 12 (e.g. a turn needs a centripetal acceleration the ε bound
-                # does not allow from the previous tick's): the position limits stay, ε goes.
-                lo, hi = self.box(q, qd, with_eq13=False)
-                res = self.backend.solve(H2, f2, lo, hi, E=nh_E, e=nh_e, key="wbqp-obj")
-                relaxed = "; eq. 13 relaxed this tick"
-            if res.ok:
-                held = self.backend.solve(H, f, lo, hi, E=np.vstack([J, nh_E]), e=np.r_[J @ res.x, nh_e], key="wbqp-eq")
-                if held.ok and np.linalg.norm(J @ held.x - J @ res.x) <= cfg.eq_tol * (1.0 + np.linalg.norm(b)):
-                    res = held
-            if res.ok:
-                resid = float(np.linalg.norm(J @ res.x - b))
-                status = "infeasible"
-                reason = (
-                    f"J_a q̈ = b cannot hold within the limits and eq. 13 ({eq_status}): "
-                    f"hand task as objective, acceleration residual {resid:.3g} m/s^2{relaxed}"
-                )
+        bnorm = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+        x = res.x.tolist()
+        resid = _residual(J, x, b) if res.ok else math.inf
+        if not res.ok or resid > cfg.eq_tol * (1.0 + bnorm):
+            res, resid, lo, hi, reason = self._fallback(res, resid, f, lo, hi, J, b, nh_E, nh_e, bnorm, ql, qdl)
+            status = "infeasible"
+            x = res.x.tolist()
         if not res.ok:
             # No solution at all: brake every coordinate as hard as the box allows.
-            qdd = np.clip(-qd / dt, lo, hi)
-            resid = float(np.linalg.norm(J @ qdd - b))
-            self.qdd_prev = qdd
-            ms = (time.perf_counter() - t0) * 1e3
-            cpu = (time.thread_time() - c0) * 1e3
-            return WbqpResult(qdd, "failed", f"QP failed ({res.status}): braking", resid, res.iters, ms, pref, cpu)
-        qdd = np.minimum(np.maximum(res.x, lo), hi)  # solver tolerance only
+            x = [-v / dt for v in qdl]
+            status, reason = "failed", f"QP failed ({res.status}): braking"
+        x = [lk if xk < lk else (hk if xk > hk else xk) for xk, lk, hk in zip(x, lo, hi)]  # solver tolerance only
+        if not res.ok:
+            resid = _residual(J, x, b)
+        qdd = np.array(x)
         self.qdd_prev = qdd
+        q_next, qd_next = predict(q, qd, qdd, dt)
         ms = (time.perf_counter() - t0) * 1e3
-        return WbqpResult(qdd, status, reason, resid, res.iters, ms, pref, (time.thread_time() - c0) * 1e3)
+        cpu = (time.thread_time() - c0) * 1e3
+        return WbqpResult(qdd, status, reason, resid, res.iters, ms, np.array(pref), cpu, q_next, qd_next)
+
+    def _solve_equality(
+        self, f: list[float], lo: list[float], hi: list[float], E: list[list[float]], e: list[float]
+    ) -> QpResult:
+        """The hard-equality QP: min ½ q̈ᵀ H q̈ + fᵀ q̈ s.t. lo <= q̈ <= hi, E q̈ = e (E: 4 rows of 7).
+
+        First its equality-only optimum in closed form (:func:`equality_qp`): when that lies in the
+        box, no bound is active and it is the QP's solution (the KKT conditions hold with zero bound
+        multipliers), ``iters = 0``. Otherwise the QP solver: DAQP called directly on the arrays
+        ``DaqpBackend.solve`` would build (the box as DAQP's simple bounds, the equality rows as its
+        band), or any other backend through its interface.
+        """
+        x = equality_qp(self._h_inv, f, E, e)
+        if x is not None and all(lk <= xk <= hk for xk, lk, hk in zip(x, lo, hi)):
+            return QpResult(np.array(x), True, 0, "closed form (no bound active)")
+        fa = np.array(f)
+        if not self._daqp:
+            lo_a, hi_a = np.array(lo), np.array(hi)
+            return self.backend.solve(self._H, fa, lo_a, hi_a, E=np.array(E), e=np.array(e), key="wbqp-eq")
+        # DAQP's stateless call, not a daqp.Model kept across ticks: on this QP the Model's update
+        # costs more than a fresh setup (measured: 27 against 23 us).
+        band = self.backend.eq_band
+        bu = np.array(hi + [v + band for v in e])
+        bl = np.array(lo + [v - band for v in e])
+        x, _fval, flag, info = daqp.solve(self._H, fa, np.array(E), bu, bl, self._sense, **self.backend.settings)
+        ok = flag in (1, 2) and math.isfinite(x @ x)  # one reduction: any inf or nan makes it non-finite
+        return QpResult(x, ok, info["iterations"], f"exitflag {flag}")
+
+    def _fallback(
+        self,
+        res: QpResult,
+        resid: float,
+        f: list[float],
+        lo: list[float],
+        hi: list[float],
+        J: list[list[float]],
+        b: list[float],
+        nh_E: list[float],
+        nh_e: float,
+        bnorm: float,
+        q: list[float],
+        qd: list[float],
+    ) -> tuple[QpResult, float, list[float], list[float], str]:
+        """Section 4.1: the end-effector task as objective, the other constraints kept.
+
+        Eq. 6 weighs the two terms as (Q, Δt^4 R): the hand term dominates by ~1e12, which no QP
+        solver resolves in one H (the R part drowns in its regularisation). Solved as its limit
+        instead, in two well-scaled QPs: the best hand acceleration first, then the R term with
+        that hand acceleration held. Returns (result, its residual ||J_a q̈ - b||, lo, hi as used, reason).
+        """
+        cfg = self.config
+        eq_status = res.status if not res.ok else f"equality residual {resid:.3g}"
+        Jn, bn = np.array(J), np.array(b)
+        nh_En, nh_en = np.array([nh_E]), np.array([nh_e])
+        JtQ = Jn.T @ self.Q
+        H2 = 2.0 * (JtQ @ Jn) + self._reg
+        f2 = -2.0 * (JtQ @ bn)
+        relaxed = ""
+        lo_a, hi_a = np.array(lo), np.array(hi)
+        res = self.backend.solve(H2, f2, lo_a, hi_a, E=nh_En, e=nh_en, key="wbqp-obj")
+        if not res.ok:
+            # Eq. 13 against eq. 12 (e.g. a turn needs a centripetal acceleration the ε bound
+            # does not allow from the previous tick's): the position limits stay, ε goes.
+            lo, hi = self.box(q, qd, with_eq13=False)
+            lo_a, hi_a = np.array(lo), np.array(hi)
+            res = self.backend.solve(H2, f2, lo_a, hi_a, E=nh_En, e=nh_en, key="wbqp-obj")
+            relaxed = "; eq. 13 relaxed this tick"
+        if res.ok:
+            held = self._solve_equality(f, lo, hi, [*J, nh_E], [*(Jn @ res.x).tolist(), nh_e])
+            if held.ok and np.linalg.norm(Jn @ held.x - Jn @ res.x) <= cfg.eq_tol * (1.0 + bnorm):
+                res = held
+        resid = _residual(J, res.x.tolist(), b) if res.ok else math.inf
+        reason = (
+            f"J_a q̈ = b cannot hold within the limits and eq. 13 ({eq_status}): "
+            f"hand task as objective, acceleration residual {resid:.3g} m/s^2{relaxed}"
+        )
+        return res, resid, lo, hi, reason
+
+
+def equality_qp(h_inv: list[float], f: list[float], E: list[list[float]], e: list[float]) -> list[float] | None:
+    """argmin ½ xᵀ H x + fᵀ x s.t. E x = e, for a diagonal H (h_inv [n]: its inverse) and 4 rows E [4][n], e [4].
+
+    x = H⁻¹ (Eᵀ λ - f) with (E H⁻¹ Eᵀ) λ = e + E H⁻¹ f, the 4 x 4 system solved by Cholesky, all
+    written out (the planner's 3 hand rows and eq. 12's row). Returns None when E H⁻¹ Eᵀ is not
+    clearly positive definite (E loses rank, e.g. at an arm singularity): a QP solver decides then.
+    """
+    m00 = m10 = m11 = m20 = m21 = m22 = m30 = m31 = m32 = m33 = 0.0
+    s0 = s1 = s2 = s3 = 0.0  # E H⁻¹ f
+    for hk, fk, ak, bk, ck, dk in zip(h_inv, f, *E):
+        ha, hb, hc, hd = hk * ak, hk * bk, hk * ck, hk * dk
+        m00 += ha * ak
+        m10 += hb * ak
+        m11 += hb * bk
+        m20 += hc * ak
+        m21 += hc * bk
+        m22 += hc * ck
+        m30 += hd * ak
+        m31 += hd * bk
+        m32 += hd * ck
+        m33 += hd * dk
+        s0 += ha * fk
+        s1 += hb * fk
+        s2 += hc * fk
+        s3 += hd * fk
+    floor = 1e-12 * max(m00, m11, m22, m33)
+    # Cholesky M = L Lᵀ (lower L), a relative floor on the pivots.
+    if not m00 > floor:
+        return None
+    l00 = math.sqrt(m00)
+    l10, l20, l30 = m10 / l00, m20 / l00, m30 / l00
+    p = m11 - l10 * l10
+    if not p > floor:
+        return None
+    l11 = math.sqrt(p)
+    l21, l31 = (m21 - l20 * l10) / l11, (m31 - l30 * l10) / l11
+    p = m22 - l20 * l20 - l21 * l21
+    if not p > floor:
+        return None
+    l22 = math.sqrt(p)
+    l32 = (m32 - l30 * l20 - l31 * l21) / l22
+    p = m33 - l30 * l30 - l31 * l31 - l32 * l32
+    if not p > floor:
+        return None
+    l33 = math.sqrt(p)
+    e0, e1, e2, e3 = e
+    y0 = (e0 + s0) / l00  # L y = e + E H⁻¹ f
+    y1 = (e1 + s1 - l10 * y0) / l11
+    y2 = (e2 + s2 - l20 * y0 - l21 * y1) / l22
+    y3 = (e3 + s3 - l30 * y0 - l31 * y1 - l32 * y2) / l33
+    k3 = y3 / l33  # Lᵀ λ = y
+    k2 = (y2 - l32 * k3) / l22
+    k1 = (y1 - l21 * k2 - l31 * k3) / l11
+    k0 = (y0 - l10 * k1 - l20 * k2 - l30 * k3) / l00
+    return [hk * (ak * k0 + bk * k1 + ck * k2 + dk * k3 - fk) for hk, fk, ak, bk, ck, dk in zip(h_inv, f, *E)]
+
+
+def _residual(J: list[list[float]], x: list[float], b: list[float]) -> float:
+    """||J x - b|| for J [3][7], x [7], b [3] (floats)."""
+    s = 0.0
+    for Ji, bi in zip(J, b):
+        r = Ji[0] * x[0] + Ji[1] * x[1] + Ji[2] * x[2] + Ji[3] * x[3] + Ji[4] * x[4] + Ji[5] * x[5] + Ji[6] * x[6] - bi
+        s += r * r
+    return math.sqrt(s)
 
 
 def predict(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

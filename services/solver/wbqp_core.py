@@ -3,9 +3,10 @@
 The operator's right hand drives the gripper: the ``right_wrist`` target (position and
 velocity, in the robot's base frame, here the world frame Σw the robot started in) is the
 hand's desired motion for seed 002's planner. Each :meth:`WbqpCore.step` samples the target at
-the tick time, plans q̈, integrates it (eq. 7) and returns a JointCommand whose joints are the
-seven generalised coordinates (:data:`~services.solver.wbqp_accel.Q_NAMES`): ``q`` [m, rad],
-``qd`` [m/s, rad/s], ``residuals = [||J_a q̈ - b||]`` [m/s^2].
+the tick time, plans q̈, integrates it (eq. 7, inside the planner's tick) and returns a
+JointCommand whose joints are the seven generalised coordinates
+(:data:`~services.solver.wbqp_accel.Q_NAMES`): ``q`` [m, rad], ``qd`` [m/s, rad/s],
+``residuals = [||J_a q̈ - b||]`` [m/s^2].
 
 Status: ``init`` before the first targets (the start pose is held), ``ok`` (the hand equality
 held), ``infeasible`` (section 4.1 fallback; the reason gives the residual), ``held`` (targets
@@ -22,7 +23,7 @@ import numpy as np
 
 from services.solver.reference_filter import ReferenceFilter
 from services.solver.targets import TargetTracker
-from services.solver.wbqp_accel import Q_NAMES, WbqpAccel, WbqpConfig, predict
+from services.solver.wbqp_accel import Q_NAMES, WbqpAccel, WbqpConfig
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.wheeled import WheeledRobot, planner_limits
 
@@ -83,7 +84,7 @@ class WbqpCore:
                 self.ref.reset(self.planner.kin.evaluate(self.q, self.qd)[0])
             p_r, v_r, a_r = self.ref.step(s.p, v_d, self.dt)
             res = self.planner.solve(self.q, self.qd, p_r, v_r, a_r)
-        self.q, self.qd = predict(self.q, self.qd, res.qdd, self.dt)
+        self.q, self.qd = res.q_next, res.qd_next
         status, reason = res.status, res.reason
         if status == "ok" and (stale or s.held):
             status = "held"

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from services.solver.wbqp_accel import WbqpAccel, WbqpConfig, predict
+from services.solver.wbqp_accel import WbqpAccel, WbqpConfig
 from services.wbc.balance import BalanceConfig, BalanceController, Reference, leg_ik, yaw_pitch_roll
 from shared.kinematics.mobile_arm import ARM, BASE, NQ
 from shared.robot.wheeled import WheeledRobot, build_wheeled_robot, planner_limits
@@ -160,8 +160,7 @@ def run_reach(config: WbcEvalConfig | None = None, robot: WheeledRobot | str = "
         p_d, v_d, a_d = min_jerk(p0, goal, cfg.duration, t)
         res = planner.solve(q_plan, qd_plan, p_d, v_d, a_d)
         statuses[res.status] = statuses.get(res.status, 0) + 1
-        qdd_plan = res.qdd
-        q_plan, qd_plan = predict(q_plan, qd_plan, qdd_plan, cfg.planner.dt)
+        qdd_plan, q_plan, qd_plan = res.qdd, res.q_next, res.qd_next  # eq. 7, timed in res.solve_ms
         if np.any(q_plan < planner.lower - 1e-9) or np.any(q_plan > planner.upper + 1e-9):
             violations += 1
             viol_detail["plan"] = viol_detail.get("plan", 0) + 1

@@ -3,8 +3,10 @@
 A :class:`Configuration` wraps a :class:`~shared.robot.pinocchio_model.RobotModel`
 (reduced to the controlled joints, base frame = pelvis) and its own Pinocchio
 data. :meth:`Configuration.update` runs one ``computeJointJacobians`` and one
-``updateFramePlacements``; every frame pose and Jacobian afterwards is a cheap
-read of that data, so building all tasks of a tick costs one kinematics pass.
+``updateFramePlacements``; every frame pose and Jacobian afterwards is read from
+that data once per update and cached (several tasks share a frame: the wrist
+position and orientation tasks, the gain shaping), so building all tasks of a
+tick costs one kinematics pass and one read per frame.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ class Configuration:
         self.nv = robot.model.nv
         self.q = np.array(robot.q_rest if q is None else q, dtype=float)
         self._frame_cache: dict[str, int] = {}
+        #: per frame id, read once per update: (p (3,), R (3, 3)) and the (6, n) Jacobian
+        self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._jacobians: dict[int, np.ndarray] = {}
         self.update(self.q)
 
     def frame_id(self, name: str) -> int:
@@ -55,23 +60,40 @@ class Configuration:
             self.q[:] = q
         pin.computeJointJacobians(self.model, self.data, self.q)
         pin.updateFramePlacements(self.model, self.data)
+        self._poses.clear()
+        self._jacobians.clear()
 
     def get_frame_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose of a frame in the base (pelvis) frame.
 
         Returns:
-            p (3,) [m] and R (3, 3), views into the data (copy to keep).
+            p (3,) [m] and R (3, 3), read once per :meth:`update` and shared by every caller until the
+            next one (do not write into them).
         """
-        oMf = self.data.oMf[self.frame_id(name)]
-        return oMf.translation, oMf.rotation
+        fid = self._frame_cache.get(name)
+        if fid is None:
+            fid = self.frame_id(name)
+        pose = self._poses.get(fid)
+        if pose is None:
+            # One conversion of the 4x4 placement (two for translation and rotation cost twice as much).
+            H = self.data.oMf[fid].homogeneous
+            pose = self._poses[fid] = (H[:3, 3], H[:3, :3])
+        return pose
 
     def get_frame_jacobian(self, name: str) -> np.ndarray:
         """(6, n) Jacobian of a frame, LOCAL_WORLD_ALIGNED: rows [linear (3) [m/rad]; angular (3) [rad/rad]].
 
         The linear rows give the velocity of the frame origin expressed in the base
-        frame; the angular rows the angular velocity in the base frame.
+        frame; the angular rows the angular velocity in the base frame. Read once per :meth:`update` and
+        shared by every caller until the next one (do not write into it).
         """
-        return pin.getFrameJacobian(self.model, self.data, self.frame_id(name), _LWA)
+        fid = self._frame_cache.get(name)
+        if fid is None:
+            fid = self.frame_id(name)
+        J = self._jacobians.get(fid)
+        if J is None:
+            J = self._jacobians[fid] = pin.getFrameJacobian(self.model, self.data, fid, _LWA)
+        return J
 
     def integrate(self, v: np.ndarray, dt: float) -> np.ndarray:
         """q + v dt on the configuration manifold: (n,) [rad] for v (n,) [rad/s], dt [s]."""

@@ -79,3 +79,11 @@ class FrameTask(Task):
 
     def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
         return configuration.get_frame_jacobian(self.frame)
+
+    def fill_qp_objective(self, configuration: Configuration, A: np.ndarray, b: np.ndarray) -> None:
+        # The error straight into b (the base class's steps, fewer calls: this runs several times a tick).
+        np.multiply(self._cost_col, configuration.get_frame_jacobian(self.frame), out=A)
+        p, R = configuration.get_frame_pose(self.frame)
+        np.subtract(self.p_target, p, out=b[:3])
+        b[3:] = pin.log3(self.R_target @ R.T)
+        self._fill_b(b, b)

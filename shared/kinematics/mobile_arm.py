@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.kinematics.poe import fk_space, jacobian_space, jacobian_space_dot, mixed_from_space, skew
-from shared.rotations import cross3
 
 NQ = 7
 #: Indices into q.
@@ -48,14 +47,20 @@ class MobileArmKinematics:
     M: np.ndarray
 
     def __post_init__(self) -> None:
-        self._joint = []
+        # Per revolute joint, as plain floats for :meth:`evaluate_scalars`: ω, v, the products
+        # (ωx², ωy², ωz², ωxωy, ωxωz, ωyωz) of ω ωᵀ = [ω̂]^2 + I, [ω̂]v and [ω̂]^2 v.
+        self._joint: list[tuple] = []
         for i in range(self.S.shape[1]):
             w, v = self.S[:3, i].astype(float), self.S[3:, i].astype(float)
             if abs(np.linalg.norm(w) - 1.0) > 1e-12:
                 raise ValueError(f"arm joint {i}: screw axis needs a unit rotation axis (revolute joint)")
             K = skew(w)
-            K2 = K @ K
-            self._joint.append((w, v, K, K2, K @ v, K2 @ v))
+            wx, wy, wz = w.tolist()
+            ww = (wx * wx, wy * wy, wz * wz, wx * wy, wx * wz, wy * wz)
+            self._joint.append(
+                (tuple(w.tolist()), tuple(v.tolist()), ww, tuple((K @ v).tolist()), tuple((K @ K @ v).tolist()))
+            )
+        self._home = tuple(np.asarray(self.M, dtype=float)[:3, 3].tolist())
 
     def hand_in_torso(self, theta: np.ndarray) -> np.ndarray:
         """p_b^h (3,) [m]: the hand in Σb."""
@@ -104,54 +109,119 @@ class MobileArmKinematics:
         return ad * ad * np.cross(ez, np.cross(ez, r)) + 2.0 * ad * np.cross(ez, Rz @ pd) + Rz @ pdd
 
     def evaluate(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(p_w^h (3,), J_a (3, 7), J̇_a q̇ (3,)) in one pass over the chain (the planner's per-tick call).
+        """(p_w^h (3,), J_a (3, 7), J̇_a q̇ (3,)) in one pass over the chain (:meth:`evaluate_scalars` as arrays).
 
         Same quantities as :meth:`hand`, :meth:`jacobian` and :meth:`jacobian_dot_qdot` (the
-        tests hold them equal), with each joint exponential computed once.
+        seed-003 library; the tests hold them equal over random configurations).
         """
-        theta, dtheta = q[ARM], qd[ARM]
-        n = self.S.shape[1]
-        Js = np.empty((6, n))
-        # Revolute chain with precomputed [ω̂], [ω̂]^2 (see __post_init__): T_i = T_(i-1) e^[S_i]θ_i
-        # as (R, p), and J_si = Ad_T(i-1) S_i = [R ω_i; R v_i + p × R ω_i].
-        R = np.eye(3)
-        pos = np.zeros(3)
-        for i in range(n):
-            w, v, K, K2, Kv, K2v = self._joint[i]
-            Rw = R @ w
-            Js[:3, i] = Rw
-            Js[3:, i] = R @ v + cross3(pos, Rw)
-            th = float(theta[i])
+        p, J, jdqd = self.evaluate_scalars(q.tolist(), qd.tolist())
+        return np.array(p), np.array(J), np.array(jdqd)
+
+    def evaluate_scalars(self, q: list[float], qd: list[float]) -> tuple[list[float], list[list[float]], list[float]]:
+        """The planner's per-tick call: (p_w^h [3], J_a rows [3][7], J̇_a q̇ [3]) as Python floats.
+
+        q, qd: the 7 coordinates and their rates as sequences of floats. The same arithmetic as
+        the library functions (revolute PoE chain, space Jacobian from adjoints, J̇_s θ̇ from
+        the Lie brackets), written out for a 3x3 rotation and plain floats: at 7 coordinates,
+        numpy's per-call cost (~1 us per small-array operation) is most of the time, not the arithmetic.
+        """
+        x, y, z, alpha, *theta = q
+        al = qd[3]
+        dtheta = qd[4:]
+        # T_i = T_(i-1) e^[S_i]θ_i as (R row-major 9 floats, pos); J_si = [R ω_i; R v_i + pos × R ω_i].
+        r0, r1, r2, r3, r4, r5, r6, r7, r8 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+        px = py = pz = 0.0
+        cols = []  # (ωx, ωy, ωz, vx, vy, vz) per joint, in Σb
+        for ((wx, wy, wz), (vx, vy, vz), (xx, yy, zz, xy, xz, yz), (kv0, kv1, kv2), (mv0, mv1, mv2)), th in zip(
+            self._joint, theta
+        ):
+            first = not cols  # T_0 = I: the first joint's products are skipped (J_s1 = S_1)
+            if first:
+                cols.append((wx, wy, wz, vx, vy, vz))
+            else:
+                ax = r0 * wx + r1 * wy + r2 * wz
+                ay = r3 * wx + r4 * wy + r5 * wz
+                az = r6 * wx + r7 * wy + r8 * wz
+                bx = r0 * vx + r1 * vy + r2 * vz + py * az - pz * ay
+                by = r3 * vx + r4 * vy + r5 * vz + pz * ax - px * az
+                bz = r6 * vx + r7 * vy + r8 * vz + px * ay - py * ax
+                cols.append((ax, ay, az, bx, by, bz))
             st, ct = math.sin(th), math.cos(th)
-            pos = pos + R @ (v * th + (1.0 - ct) * Kv + (th - st) * K2v)
-            R = R @ (np.eye(3) + st * K + (1.0 - ct) * K2)
-        p = R @ self.M[:3, 3] + pos
-        # J̇_s θ̇ = Σ_i ad(V_{i-1}) J_si θ̇_i, V_{i-1} = Σ_{j<i} J_sj θ̇_j (ad written out: no 6x6 products).
-        wacc = np.zeros(3)
-        vacc = np.zeros(3)
-        aw = np.zeros(3)
-        av = np.zeros(3)
-        for i in range(n):
-            wi, vi, di = Js[:3, i], Js[3:, i], dtheta[i]
-            aw += cross3(wacc, wi) * di
-            av += (cross3(vacc, wi) + cross3(wacc, vi)) * di
-            wacc += wi * di
-            vacc += vi * di
-        pd = vacc + cross3(wacc, p)
-        pdd = av + cross3(aw, p) + cross3(wacc, pd)
-        Jarm = np.empty((3, n))
-        for i in range(n):
-            Jarm[:, i] = Js[3:, i] + cross3(Js[:3, i], p)  # v + ω × p
-        Rz = rot_z(q[ALPHA])
-        r = Rz @ p
-        J = np.zeros((3, NQ))
-        J[0, 0] = J[1, 1] = J[2, 2] = 1.0
-        J[0, ALPHA], J[1, ALPHA] = -r[1], r[0]
-        J[:, ARM] = Rz @ Jarm
-        al = qd[ALPHA]
-        rpd = Rz @ pd
+            oc, ts = 1.0 - ct, th - st
+            # translation of e^[S]θ: (I θ + (1 - cos θ)[ω̂] + (θ - sin θ)[ω̂]^2) v
+            tx = vx * th + oc * kv0 + ts * mv0
+            ty = vy * th + oc * kv1 + ts * mv1
+            tz = vz * th + oc * kv2 + ts * mv2
+            if first:
+                px, py, pz = tx, ty, tz
+            else:
+                px += r0 * tx + r1 * ty + r2 * tz
+                py += r3 * tx + r4 * ty + r5 * tz
+                pz += r6 * tx + r7 * ty + r8 * tz
+            # rotation of e^[S]θ (Rodrigues, |ω| = 1): cos θ I + sin θ [ω̂] + (1 - cos θ) ω ωᵀ, then R <- R E
+            sx, sy, sz = st * wx, st * wy, st * wz
+            e0, e4, e8 = ct + oc * xx, ct + oc * yy, ct + oc * zz
+            oxy, oxz, oyz = oc * xy, oc * xz, oc * yz
+            e1, e3 = oxy - sz, oxy + sz
+            e2, e6 = oxz + sy, oxz - sy
+            e5, e7 = oyz - sx, oyz + sx
+            if first:
+                r0, r1, r2, r3, r4, r5, r6, r7, r8 = e0, e1, e2, e3, e4, e5, e6, e7, e8
+                continue
+            r0, r1, r2, r3, r4, r5, r6, r7, r8 = (
+                r0 * e0 + r1 * e3 + r2 * e6,
+                r0 * e1 + r1 * e4 + r2 * e7,
+                r0 * e2 + r1 * e5 + r2 * e8,
+                r3 * e0 + r4 * e3 + r5 * e6,
+                r3 * e1 + r4 * e4 + r5 * e7,
+                r3 * e2 + r4 * e5 + r5 * e8,
+                r6 * e0 + r7 * e3 + r8 * e6,
+                r6 * e1 + r7 * e4 + r8 * e7,
+                r6 * e2 + r7 * e5 + r8 * e8,
+            )
+        hx, hy, hz = self._home
+        px += r0 * hx + r1 * hy + r2 * hz
+        py += r3 * hx + r4 * hy + r5 * hz
+        pz += r6 * hx + r7 * hy + r8 * hz
+        # J̇_s θ̇ = Σ_i ad(V_(i-1)) J_si θ̇_i with V_(i-1) = Σ_(j<i) J_sj θ̇_j; (W, U) = V_(i-1), (aw, av) the sum.
+        Wx = Wy = Wz = Ux = Uy = Uz = 0.0
+        awx = awy = awz = avx = avy = avz = 0.0
+        arm = []  # columns of the arm's linear Jacobian at the hand: v_i + ω_i × p
+        for (ax, ay, az, bx, by, bz), d in zip(cols, dtheta):
+            awx += (Wy * az - Wz * ay) * d
+            awy += (Wz * ax - Wx * az) * d
+            awz += (Wx * ay - Wy * ax) * d
+            avx += (Uy * az - Uz * ay + Wy * bz - Wz * by) * d
+            avy += (Uz * ax - Ux * az + Wz * bx - Wx * bz) * d
+            avz += (Ux * ay - Uy * ax + Wx * by - Wy * bx) * d
+            Wx += ax * d
+            Wy += ay * d
+            Wz += az * d
+            Ux += bx * d
+            Uy += by * d
+            Uz += bz * d
+            arm.append((bx + ay * pz - az * py, by + az * px - ax * pz, bz + ax * py - ay * px))
+        # ṗ = v + ω × p; p̈ = a_v + a_ω × p + ω × ṗ (hand in Σb at q̈ = 0).
+        dx = Ux + Wy * pz - Wz * py
+        dy = Uy + Wz * px - Wx * pz
+        dz = Uz + Wx * py - Wy * px
+        ddx = avx + awy * pz - awz * py + Wy * dz - Wz * dy
+        ddy = avy + awz * px - awx * pz + Wz * dx - Wx * dz
+        ddz = avz + awx * py - awy * px + Wx * dy - Wy * dx
+        c, s = math.cos(alpha), math.sin(alpha)
+        rx, ry = c * px - s * py, s * px + c * py  # R_z p
+        row_x = [1.0, 0.0, 0.0, -ry]
+        row_y = [0.0, 1.0, 0.0, rx]
+        row_z = [0.0, 0.0, 1.0, 0.0]
+        for jx, jy, jz in arm:
+            row_x.append(c * jx - s * jy)
+            row_y.append(s * jx + c * jy)
+            row_z.append(jz)
         # α̇² e_z × (e_z × r) + 2 α̇ e_z × (R_z ṗ) + R_z p̈, with e_z × u = (-u_y, u_x, 0).
-        jdqd = Rz @ pdd
-        jdqd[0] += -al * al * r[0] - 2.0 * al * rpd[1]
-        jdqd[1] += -al * al * r[1] + 2.0 * al * rpd[0]
-        return q[:3] + r, J, jdqd
+        vx, vy = c * dx - s * dy, s * dx + c * dy
+        jdqd = [
+            c * ddx - s * ddy - al * al * rx - 2.0 * al * vy,
+            s * ddx + c * ddy - al * al * ry + 2.0 * al * vx,
+            ddz,
+        ]
+        return [x + rx, y + ry, z + pz], [row_x, row_y, row_z], jdqd

@@ -47,3 +47,9 @@ class PositionTask(Task):
 
     def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
         return configuration.get_frame_jacobian(self.frame)[:3]
+
+    def fill_qp_objective(self, configuration: Configuration, A: np.ndarray, b: np.ndarray) -> None:
+        # The error straight into b (the base class's steps, fewer calls: this runs several times a tick).
+        np.multiply(self._cost_col, configuration.get_frame_jacobian(self.frame)[:3], out=A)
+        np.subtract(self.p_target, configuration.get_frame_pose(self.frame)[0], out=b)
+        self._fill_b(b, b)

@@ -43,5 +43,5 @@ class PostureTask(Task):
         # A = diag(cost), without a dense product with the identity.
         A.fill(0.0)
         A.flat[:: self.dim + 1] = self.cost
-        np.subtract(self.q_target, configuration.q, out=self._err)
-        np.multiply(self.cost, self._ff + self.gain * self._err, out=b)
+        np.subtract(self.q_target, configuration.q, out=b)
+        self._fill_b(b, b)

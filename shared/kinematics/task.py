@@ -36,6 +36,8 @@ class Task(ABC):
             raise ValueError(f"{name}: cost must be {self.dim} finite values >= 0, got {cost}")
         self.name = name
         self.cost = cost
+        #: (m, 1) view of cost for the row scaling of A (cost is only ever changed in place)
+        self._cost_col = cost[:, None]
         self.gain = float(gain)
         self._ff = np.zeros(self.dim)
 
@@ -53,8 +55,14 @@ class Task(ABC):
 
     def fill_qp_objective(self, configuration: Configuration, A: np.ndarray, b: np.ndarray) -> None:
         """Write ``A = W J`` (m, n) and ``b = W (v_ff + gain e)`` (m,) into the given buffers."""
-        np.multiply(self.cost[:, None], self.compute_jacobian(configuration), out=A)
-        np.multiply(self.cost, self.feedforward() + self.gain * self.compute_error(configuration), out=b)
+        np.multiply(self._cost_col, self.compute_jacobian(configuration), out=A)
+        self._fill_b(self.compute_error(configuration), b)
+
+    def _fill_b(self, e: np.ndarray, b: np.ndarray) -> None:
+        """``b = W (v_ff + gain e)`` in place (b may already hold e): no temporaries, the same bits."""
+        np.multiply(e, self.gain, out=b)
+        b += self.feedforward()
+        b *= self.cost
 
     def compute_qp_objective(self, configuration: Configuration) -> tuple[np.ndarray, np.ndarray]:
         """(A (m, n), b (m,)) of the least-squares objective ``||A qd - b||^2``."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 import time
 
 import msgpack
@@ -171,3 +172,52 @@ def test_numbered_samples_carry_source_and_number_and_plain_ones_do_not(router):
     finally:
         a.close()
         b.close()
+
+
+@pytest.mark.integration
+def test_ring_reader_polls_newest_wins_and_waits_in_order_without_a_receiver_thread(router):
+    args = bus_args(connect=[router], session="reader")
+    client = zenoh.open(zenoh_config(args))
+    try:
+        with ServiceRunner("listener", args, install_signals=False) as svc:
+            threads = threading.active_count()
+            latest = svc.subscribe_reader(svc.keys.sim_state, msgpack.unpackb, "state")
+            queue = svc.subscribe_reader(svc.keys.mocap_frame, msgpack.unpackb, "frames", depth=4)
+            assert threading.active_count() == threads  # the consumer reads the rings itself
+            state_pub = NumberedPublisher(client, svc.keys.sim_state)
+            frame_pub = NumberedPublisher(client, svc.keys.mocap_frame)
+            assert _wait(lambda: (state_pub.put(msgpack.packb(-1)), latest.take() is not None)[1])
+            time.sleep(0.3)
+            while latest.take() is not None:  # warm-up samples still on the way
+                pass
+            t = time.monotonic()
+            assert latest.take() is None and time.monotonic() - t < 0.05  # nothing waiting: no blocking
+            base = svc.status.count("dropped.state")
+            for i in range(5):
+                state_pub.put(msgpack.packb(i))
+            time.sleep(1.0)  # all five wait in the ring; nothing has read them yet
+            # Polled after five arrivals: the newest, the four before it counted as dropped (not lost).
+            assert latest.take() == 4
+            assert svc.status.count("dropped.state") - base == 4
+            assert svc.status.count("gaps.state") == 0
+            assert latest.take() is None
+            # The queue: everything in order, wait_take() blocking until each comes.
+            assert _wait(lambda: (frame_pub.put(msgpack.packb(-1)), queue.take() is not None)[1])
+            time.sleep(0.3)
+            while queue.take() is not None:
+                pass
+            got = []
+            waiter = threading.Thread(target=lambda: got.extend(queue.wait_take() for _ in range(3)))
+            waiter.start()
+            for i in range(3):
+                time.sleep(0.05)
+                frame_pub.put(msgpack.packb(i))
+            waiter.join(10)
+            assert got == [0, 1, 2]
+            # Closing the session ends a waiting consumer.
+            ended = threading.Thread(target=queue.wait_take)
+            ended.start()
+        ended.join(10)
+        assert not ended.is_alive() and queue.closed
+    finally:
+        client.close()

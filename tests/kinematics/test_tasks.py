@@ -125,3 +125,39 @@ def test_bad_inputs_raise_clear_errors(robot):
         conf.update(np.zeros(robot.nq + 1))
     with pytest.raises(ValueError, match="gain"):
         PositionTask("left_elbow", gain=-1.0)
+
+
+def test_frame_reads_follow_every_update(robot):
+    """Poses and Jacobians are read once per update and shared: each update must replace them with the new q's."""
+    conf = Configuration(robot)
+    rng = np.random.default_rng(3)
+    data = robot.model.createData()
+    fid = robot.frame_id("left_wrist")
+    for q in robot.random_configurations(5, rng):
+        conf.update(q)
+        p, R = conf.get_frame_pose("left_wrist")
+        J = conf.get_frame_jacobian("left_wrist")
+        assert conf.get_frame_pose("left_wrist")[0] is p and conf.get_frame_jacobian("left_wrist") is J  # one read
+        pin.computeJointJacobians(robot.model, data, q)
+        pin.updateFramePlacements(robot.model, data)
+        np.testing.assert_array_equal(p, data.oMf[fid].translation)
+        np.testing.assert_array_equal(R, data.oMf[fid].rotation)
+        np.testing.assert_array_equal(J, pin.getFrameJacobian(robot.model, data, fid, pin.LOCAL_WORLD_ALIGNED))
+
+
+def test_specialised_rows_equal_the_generic_ones(robot):
+    """Position, pose and posture tasks fill their rows with fewer calls: the same bits as A = W J, b = W (v + k e)."""
+    rng = np.random.default_rng(4)
+    conf = Configuration(robot, robot.random_configurations(1, rng)[0])
+    p, R = (x.copy() for x in conf.get_frame_pose("right_wrist"))
+    tasks = [PositionTask("left_elbow", 0.7, 30.0), FrameTask("right_wrist", 2.0, 0.5, 10.0)]
+    tasks[0].set_target(conf.get_frame_pose("left_elbow")[0] + 0.02, rng.normal(size=3))
+    tasks[1].set_target(p - 0.01, pin.exp3(rng.normal(size=3) * 0.2) @ R, rng.normal(size=3), rng.normal(size=3))
+    posture = PostureTask(robot.q_rest, 1e-2, 5.0)
+    for task in (*tasks, posture):
+        A, b = np.empty((task.dim, robot.nq)), np.empty(task.dim)
+        task.fill_qp_objective(conf, A, b)
+        W = task.cost
+        np.testing.assert_array_equal(A, W[:, None] * task.compute_jacobian(conf))
+        np.testing.assert_array_equal(b, W * (task.feedforward() + task.gain * task.compute_error(conf)))
+        assert np.abs(b).max() > 0

@@ -172,6 +172,31 @@ def test_target_velocity_is_fed_forward_between_frames(robot17):
     np.testing.assert_array_equal(s.v, 0.0)
 
 
+def test_target_samples_are_shared_within_a_tick_and_renewed_by_a_message(robot17):
+    """A tick samples each target once (the posture level and the tasks share it); a message at the same time,
+    or a later time, gives a new sample."""
+    from services.solver.targets import TargetTracker
+
+    robot = robot17
+    tracker = TargetTracker(horizon=0.05)
+    v = np.array([0.0, 0.1, 0.0])
+    tracker.update(targets_from_q(robot, robot.q_rest, 0, 0.0, vel=v), 0.0)
+    s = tracker.sample("left_wrist", 0.01)
+    assert tracker.sample("left_wrist", 0.01) is s
+    p0 = robot.frame_poses(robot.q_rest)["left_wrist"][0]
+    np.testing.assert_allclose(tracker.sample("left_wrist", 0.02).p, p0 + 0.02 * v)
+    tracker.update(targets_from_q(robot, robot.q_rest, 1, 0.02, offset=np.array([0.1, 0, 0])), 0.02)
+    np.testing.assert_allclose(tracker.sample("left_wrist", 0.02).p, p0 + np.array([0.1, 0, 0]))
+    # An invalid target at the same time freezes where the extrapolation had got to (not the memo's old sample).
+    tracker.update(targets_from_q(robot, robot.q_rest, 2, 0.03, vel=v), 0.03)
+    tracker.sample("left_wrist", 0.04)
+    tracker.update(targets_from_q(robot, robot.q_rest, 3, 0.04, valid=False), 0.04)
+    held = tracker.sample("left_wrist", 0.04)
+    assert held.held
+    np.testing.assert_allclose(held.p, p0 + 0.01 * v)
+    np.testing.assert_array_equal(held.v, 0.0)
+
+
 class _FailingBackend(DaqpBackend):
     """Fault injection: the QP solver reports failure on every call."""
 

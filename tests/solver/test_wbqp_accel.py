@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 
+import daqp
 import numpy as np
 import pytest
 
-from services.solver.wbqp_accel import WbqpAccel, WbqpConfig, predict
+from services.solver.wbqp_accel import WbqpAccel, WbqpConfig, equality_qp, predict
 from shared.kinematics.mobile_arm import ARM, BASE
 from shared.robot.wheeled import build_wheeled_robot, planner_limits
 
@@ -180,3 +181,58 @@ def test_config_is_validated():
         WbqpConfig(r_weight=(1.0, 1.0))
     with pytest.raises(ValueError, match="dt"):
         WbqpConfig(dt=0.0)
+
+
+def test_the_tick_integrates_its_plan(robot, planner):
+    """solve() covers the whole tick: q_next, qd_next are eq. 7 applied to the planned q̈."""
+    q, _ = start(robot)
+    qd = np.array([0.1, 0.0, 0.0, 0.05, 0.2, -0.1, 0.1])
+    planner.reset(np.r_[0.0, qd[0] * qd[3], np.zeros(5)])
+    res = planner.solve(q, qd, robot.kin.hand(q) + np.array([0.05, 0.0, 0.02]))
+    q2, qd2 = predict(q, qd, res.qdd, planner.config.dt)
+    assert np.array_equal(res.q_next, q2) and np.array_equal(res.qd_next, qd2)
+    assert not np.array_equal(q2, q)
+
+
+def test_direct_daqp_call_is_the_backend_problem(robot):
+    """Where a bound is active the planner calls DAQP directly on the arrays DaqpBackend.solve would
+    build: same q̈, tick by tick, as through the backend's interface.
+
+    A target jump makes eq. 13 and the damper active, and the out-of-reach phase the section-4.1
+    fallback, so bounds, equality rows and the fallback's held-hand QP all go through both paths.
+    """
+    lo, hi = planner_limits(robot)
+    direct = WbqpAccel(robot.kin, lo, hi, WbqpConfig(dt=0.001))
+    generic = WbqpAccel(robot.kin, lo, hi, WbqpConfig(dt=0.001))
+    generic._daqp = False  # the same DaqpBackend, through its QpBackend interface
+    q, qd = start(robot)
+    qg, qdg = q.copy(), qd.copy()
+    goals = [robot.kin.hand(q) + np.array([0.5, 0.0, 0.0])] * 300 + [np.array([0.2, 0.0, 3.5])] * 300
+    statuses, solver_ticks = set(), 0
+    for goal in goals:
+        a, b = direct.solve(q, qd, goal), generic.solve(qg, qdg, goal)
+        assert a.status == b.status and a.iters == b.iters
+        assert np.abs(a.qdd - b.qdd).max() <= 1e-9 * (1.0 + np.abs(b.qdd).max())
+        statuses.add(a.status)
+        solver_ticks += a.iters > 0
+        q, qd, qg, qdg = a.q_next, a.qd_next, b.q_next, b.qd_next
+    assert statuses == {"ok", "infeasible"}
+    assert solver_ticks > 100  # bounds were active on many ticks: the QP solver ran, not the closed form
+
+
+def test_closed_form_equality_qp_is_the_qp_optimum():
+    """equality_qp (no bound active) against DAQP on the same equality-constrained QP, and its refusals."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        h = rng.uniform(0.5, 50.0, 7)
+        E = rng.normal(size=(4, 7))
+        f, e = rng.normal(size=7), rng.normal(size=4)
+        x = equality_qp((1.0 / h).tolist(), f.tolist(), E.tolist(), e.tolist())
+        sense = np.full(4, 5, dtype=np.int32)  # DAQP equality rows
+        ref, _, flag, _ = daqp.solve(np.diag(h), f, E, e, e, sense)
+        assert flag == 1
+        assert np.abs(np.array(x) - ref).max() <= 1e-9 * (1.0 + np.abs(ref).max())
+        assert np.abs(E @ np.array(x) - e).max() <= 1e-10 * (1.0 + np.abs(e).max())
+    E = rng.normal(size=(4, 7))
+    E[3] = E[0] + E[1]  # rank 3: no unique multipliers
+    assert equality_qp([1.0] * 7, [0.0] * 7, E.tolist(), [0.0] * 4) is None
