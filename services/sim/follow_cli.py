@@ -28,22 +28,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_args(p)
 
 
-def alive_solvers(z, keys: Keys, wait: float = 0.5, attempt: float = 0.5) -> list[str]:
-    """Solver ids holding a liveliness token on the session now.
+def alive_solvers(z, keys: Keys, wait: float = 0.5, want: str | None = None, attempt: float = 0.5) -> list[str]:
+    """Solver ids holding a liveliness token on the session, pooled over short gets.
 
-    Asked again, each get bounded by ``attempt`` [s], until some answer holds a token or
-    ``wait`` [s] has passed: the sim that called us is alive, so an empty answer means this
-    fresh session's query was not routed yet (seen on a loaded machine as "alive: none" beside
-    two live solvers), not an empty stack. One long get could spend the whole wait on a query
-    that was never routed; short ones retry it.
+    Each get is bounded by ``attempt`` [s]; the ids of all of them are pooled until ``want`` is
+    among them, or (no ``want``) some get ended before its timeout with tokens in the pool (every
+    route answered), or ``wait`` [s] has passed. An empty or partial answer is common from a fresh
+    session on a loaded machine (its query not routed yet, a peer slow to answer: "alive: none"
+    beside two live solvers), and one long get could spend the whole wait on such a query.
     """
     deadline = time.monotonic() + wait
+    pool: set[str] = set()
     while True:
-        left = max(0.05, deadline - time.monotonic())
-        replies = z.liveliness().get(keys.all_alive, timeout=min(attempt, left))
-        tokens = [Keys.parse_alive(str(r.ok.key_expr)) for r in replies if r.ok is not None]
-        if tokens or time.monotonic() >= deadline:
-            return sorted({p[1] for p in tokens if p and p[0] == "solver"})
+        timeout = max(0.05, min(attempt, deadline - time.monotonic()))
+        t0 = time.monotonic()
+        for r in z.liveliness().get(keys.all_alive, timeout=timeout):
+            parsed = Keys.parse_alive(str(r.ok.key_expr)) if r.ok is not None else None
+            if parsed and parsed[0] == "solver":
+                pool.add(parsed[1])
+        complete = time.monotonic() - t0 < 0.9 * timeout
+        done = want in pool if want is not None else bool(pool) and complete
+        if done or time.monotonic() >= deadline:
+            return sorted(pool)
         time.sleep(0.05)
 
 
@@ -52,7 +58,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         with control_session(args, keys.sim_follow, args.timeout, "no sim") as (z, state):
             before = msgpack.unpackb(state)["follow"]
-            solvers = alive_solvers(z, keys, wait=args.timeout)
+            solvers = alive_solvers(z, keys, wait=args.timeout, want=args.id)
             if args.id is not None and args.id != before:
                 if args.id not in solvers and not args.force:
                     log.error(
