@@ -28,27 +28,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_args(p)
 
 
-def alive_solvers(z, keys: Keys, wait: float = 0.5, want: str | None = None, attempt: float = 0.5) -> list[str]:
+def alive_solvers(
+    z, keys: Keys, wait: float = 0.5, want: str | None = None, attempt: float = 0.5, settle: float = 0.5
+) -> list[str]:
     """Solver ids holding a liveliness token on the session, pooled over short gets.
 
-    Each get is bounded by ``attempt`` [s]; the ids of all of them are pooled until ``want`` is
-    among them, or (no ``want``) some get ended before its timeout with tokens in the pool (every
-    route answered), or ``wait`` [s] has passed. An empty or partial answer is common from a fresh
-    session on a loaded machine (its query not routed yet, a peer slow to answer: "alive: none"
-    beside two live solvers), and one long get could spend the whole wait on such a query.
+    A fresh session learns the other peers' tokens one peer at a time, so an early answer can be
+    empty or partial even when every get completes (seen on a loaded machine: "alive: none", or
+    one of two live solvers). Gets of at most ``attempt`` [s] are repeated and their ids pooled
+    until the pool is non-empty, holds ``want`` (if given) and has not grown for ``settle`` [s],
+    or until ``wait`` [s] has passed.
     """
-    deadline = time.monotonic() + wait
+    start = time.monotonic()
+    deadline, grew = start + wait, start
     pool: set[str] = set()
     while True:
         timeout = max(0.05, min(attempt, deadline - time.monotonic()))
-        t0 = time.monotonic()
+        before = len(pool)
         for r in z.liveliness().get(keys.all_alive, timeout=timeout):
             parsed = Keys.parse_alive(str(r.ok.key_expr)) if r.ok is not None else None
             if parsed and parsed[0] == "solver":
                 pool.add(parsed[1])
-        complete = time.monotonic() - t0 < 0.9 * timeout
-        done = want in pool if want is not None else bool(pool) and complete
-        if done or time.monotonic() >= deadline:
+        now = time.monotonic()
+        if len(pool) > before:
+            grew = now
+        settled = bool(pool) and now - grew >= settle and (want is None or want in pool)
+        if settled or now >= deadline:
             return sorted(pool)
         time.sleep(0.05)
 
