@@ -308,6 +308,22 @@ def gap_watch(status: StatusCounters, stream: str) -> Callable[[zenoh.Sample], N
     return watch
 
 
+def guarded(
+    handle: Callable[[zenoh.Sample], None], status: StatusCounters | None, name: str
+) -> Callable[[zenoh.Sample], None]:
+    """``handle`` that reports an exception to ``status`` instead of raising: a sample reader must
+    outlive any bad sample."""
+
+    def run(sample: zenoh.Sample) -> None:
+        try:
+            handle(sample)
+        except Exception as exc:
+            if status is not None:
+                status.error(f"{name} receive failed: {type(exc).__name__}: {exc}")
+
+    return run
+
+
 def ring_pump(
     session: zenoh.Session,
     key: str,
@@ -330,6 +346,7 @@ def ring_pump(
     A ``handle`` that raises is reported to ``status`` and the pump goes on.
     """
     sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+    handle = guarded(handle, status, name)
 
     def pump() -> None:
         while True:
@@ -340,11 +357,7 @@ def ring_pump(
             except zenoh.ZError:  # the session was closed
                 return
             for sample in batch:
-                try:
-                    handle(sample)
-                except Exception as exc:  # the pump must outlive any bad sample
-                    if status is not None:
-                        status.error(f"{name} receive failed: {type(exc).__name__}: {exc}")
+                handle(sample)
 
     threading.Thread(target=pump, name=f"{name}-rx", daemon=True).start()
     return sub
@@ -459,10 +472,8 @@ class RingReader:
         name: str = "ring",
     ):
         self._sub = sub
-        self._on_sample = on_sample
+        self._handle = guarded(on_sample, status, name)
         self.slot = slot
-        self._status = status
-        self._name = name
         self.closed = False
 
     def _drain(self) -> None:
@@ -471,13 +482,6 @@ class RingReader:
                 self._handle(sample)
         except zenoh.ZError:  # the session was closed
             self.closed = True
-
-    def _handle(self, sample: zenoh.Sample) -> None:
-        try:
-            self._on_sample(sample)
-        except Exception as exc:  # the consumer must outlive any bad sample
-            if self._status is not None:
-                self._status.error(f"{self._name} receive failed: {type(exc).__name__}: {exc}")
 
     def take(self, timeout: float | None = None) -> Any:
         """Like :meth:`LatestSlot.take`: the next message waiting now, or None. With ``timeout`` [s]

@@ -31,10 +31,9 @@ import math
 import time
 from dataclasses import dataclass
 
-import daqp
 import numpy as np
 
-from services.solver.qp import DaqpBackend, QpBackend, QpResult, make_backend
+from services.solver.qp import QpBackend, QpResult, make_backend
 from shared.kinematics.mobile_arm import ALPHA, NQ, MobileArmKinematics
 
 #: Joint names of the 7 generalised coordinates, as they travel in a JointCommand.
@@ -173,9 +172,6 @@ class WbqpAccel:
         self._reg = self.backend.regularization * np.eye(NQ)
         self._H = 2.0 * self.R + self._reg  # the hard-equality QP's Hessian never changes (diagonal)
         self._h_inv = (1.0 / np.diag(self._H)).tolist()
-        # DAQP is called directly (see _solve_equality); any other backend through its interface.
-        self._daqp = isinstance(self.backend, DaqpBackend)
-        self._sense = np.zeros(NQ + 4, dtype=np.int32)
 
     def reset(self, qdd: np.ndarray | None = None) -> None:
         """Forget the previous acceleration (eq. 13's q̈_pre), e.g. after a restart."""
@@ -316,25 +312,14 @@ class WbqpAccel:
 
         First its equality-only optimum in closed form (:func:`equality_qp`): when that lies in the
         box, no bound is active and it is the QP's solution (the KKT conditions hold with zero bound
-        multipliers), ``iters = 0``. Otherwise the QP solver: DAQP called directly on the arrays
-        ``DaqpBackend.solve`` would build (the box as DAQP's simple bounds, the equality rows as its
-        band), or any other backend through its interface.
+        multipliers), ``iters = 0``. Otherwise the QP backend.
         """
         x = equality_qp(self._h_inv, f, E, e)
         if x is not None and all(lk <= xk <= hk for xk, lk, hk in zip(x, lo, hi)):
             return QpResult(np.array(x), True, 0, "closed form (no bound active)")
-        fa = np.array(f)
-        if not self._daqp:
-            lo_a, hi_a = np.array(lo), np.array(hi)
-            return self.backend.solve(self._H, fa, lo_a, hi_a, E=np.array(E), e=np.array(e), key="wbqp-eq")
-        # DAQP's stateless call, not a daqp.Model kept across ticks: on this QP the Model's update
-        # costs more than a fresh setup (measured: 27 against 23 us).
-        band = self.backend.eq_band
-        bu = np.array(hi + [v + band for v in e])
-        bl = np.array(lo + [v - band for v in e])
-        x, _fval, flag, info = daqp.solve(self._H, fa, np.array(E), bu, bl, self._sense, **self.backend.settings)
-        ok = flag in (1, 2) and math.isfinite(x @ x)  # one reduction: any inf or nan makes it non-finite
-        return QpResult(x, ok, info["iterations"], f"exitflag {flag}")
+        return self.backend.solve(
+            self._H, np.array(f), np.array(lo), np.array(hi), E=np.array(E), e=np.array(e), key="wbqp-eq"
+        )
 
     def _fallback(
         self,

@@ -194,32 +194,6 @@ def test_the_tick_integrates_its_plan(robot, planner):
     assert not np.array_equal(q2, q)
 
 
-def test_direct_daqp_call_is_the_backend_problem(robot):
-    """Where a bound is active the planner calls DAQP directly on the arrays DaqpBackend.solve would
-    build: same q̈, tick by tick, as through the backend's interface.
-
-    A target jump makes eq. 13 and the damper active, and the out-of-reach phase the section-4.1
-    fallback, so bounds, equality rows and the fallback's held-hand QP all go through both paths.
-    """
-    lo, hi = planner_limits(robot)
-    direct = WbqpAccel(robot.kin, lo, hi, WbqpConfig(dt=0.001))
-    generic = WbqpAccel(robot.kin, lo, hi, WbqpConfig(dt=0.001))
-    generic._daqp = False  # the same DaqpBackend, through its QpBackend interface
-    q, qd = start(robot)
-    qg, qdg = q.copy(), qd.copy()
-    goals = [robot.kin.hand(q) + np.array([0.5, 0.0, 0.0])] * 300 + [np.array([0.2, 0.0, 3.5])] * 300
-    statuses, solver_ticks = set(), 0
-    for goal in goals:
-        a, b = direct.solve(q, qd, goal), generic.solve(qg, qdg, goal)
-        assert a.status == b.status and a.iters == b.iters
-        assert np.abs(a.qdd - b.qdd).max() <= 1e-9 * (1.0 + np.abs(b.qdd).max())
-        statuses.add(a.status)
-        solver_ticks += a.iters > 0
-        q, qd, qg, qdg = a.q_next, a.qd_next, b.q_next, b.qd_next
-    assert statuses == {"ok", "infeasible"}
-    assert solver_ticks > 100  # bounds were active on many ticks: the QP solver ran, not the closed form
-
-
 def test_closed_form_equality_qp_is_the_qp_optimum():
     """equality_qp (no bound active) against DAQP on the same equality-constrained QP, and its refusals."""
     rng = np.random.default_rng(5)
