@@ -91,13 +91,21 @@ def test_the_last_status_says_stopping_and_carries_the_last_figures(router):
     client.declare_subscriber(keys.status("probe"), lambda s: got.append(ServiceStatus.decode(s.payload.to_bytes())))
     time.sleep(0.3)  # let the subscription reach the router
     work = {"done": 0}
-    with ServiceRunner("probe", bus_args(connect=[router], session="st_stop"), install_signals=False) as svc:
+    args = bus_args(connect=[router], session="st_stop", status_period=0.1)
+    with ServiceRunner("probe", args, install_signals=False) as svc:
 
         def refresh() -> None:
             svc.status.extra["done"] = float(work["done"])
             svc.status.state = "ok"  # what a service's refresh says while it runs
 
         svc.before_status = refresh
+        # The new session learns of the client's subscription through the router a moment after it
+        # opens (longer under load); a put before that reaches nobody. Wait for a periodic status.
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and not got:
+            time.sleep(0.05)
+        assert got, "no periodic status reached the subscriber"
+        assert got[-1].state == "ok"
         work["done"] = 7  # done after the last periodic status
     deadline = time.monotonic() + 3.0
     while time.monotonic() < deadline and not (got and got[-1].state == "stopping"):
