@@ -52,7 +52,9 @@ class TrainConfig:
     """Network and optimiser settings.
 
     Attributes:
-        hidden: units of each of the two hidden layers of encoder and decoder.
+        hidden: units of each of the encoder's two hidden layers.
+        decoder_hidden, decoder_layers: units and number of the decoder's hidden layers (0 units: as
+            ``hidden``). The decoder only feeds the gate; its size is most of the real-time cost.
         epochs: passes over the data. batch: minibatch size. lr: Adam step size.
         decoder_weight: weight of the decoder loss against eq. (7)'s action loss.
         seed: torch/numpy seed. threads: torch CPU threads.
@@ -66,6 +68,8 @@ class TrainConfig:
     """
 
     hidden: int = 128
+    decoder_hidden: int = 128
+    decoder_layers: int = 2
     epochs: int = 40
     batch: int = 256
     lr: float = 3e-3
@@ -132,12 +136,14 @@ def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
     return Dataset([cat[0](S[i]) for i in range(2)], [cat[1](A[i]) for i in range(2)], [cat[2](Z[i]) for i in range(2)])
 
 
-def _net(torch, n_in: int, hidden: int, n_out: int):
+def _net(torch, n_in: int, hidden: int, n_out: int, layers: int = 2):
+    """MLP n_in -> hidden (x ``layers``) -> n_out; seed 004: tanh on the input and hidden layers, linear output."""
     nn = torch.nn
-    # Seed 004: tanh on the input and hidden layers, linear output.
-    return nn.Sequential(
-        nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(), nn.Linear(hidden, n_out)
-    )
+    mods, width = [], n_in
+    for _ in range(layers):
+        mods += [nn.Linear(width, hidden), nn.Tanh()]
+        width = hidden
+    return nn.Sequential(*mods, nn.Linear(width, n_out))
 
 
 def _norm(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +182,7 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
             T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
         gen = torch.Generator().manual_seed(cfg.seed + i)
         enc = _net(torch, STATE_DIM, cfg.hidden, ACTION_DIM)
-        dec = _net(torch, DECODER_DIM, cfg.hidden, ARM_STATE_DIM)
+        dec = _net(torch, DECODER_DIM, cfg.decoder_hidden or cfg.hidden, ARM_STATE_DIM, cfg.decoder_layers)
         opt = torch.optim.Adam([*enc.parameters(), *dec.parameters()], lr=cfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
         curve = []
