@@ -39,10 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
     t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
-    t.add_argument("--hidden", type=int, default=128, help="hidden units per layer (2 hidden layers)")
-    t.add_argument("--decoder-hidden", type=int, default=128, help="decoder hidden units per layer (it feeds the gate)")
-    t.add_argument("--decoder-layers", type=int, default=2, help="decoder hidden layers")
-    t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
+    t.add_argument("--hidden", type=int, default=128, help="encoder hidden units per layer (2 hidden layers)")
+    t.add_argument("--decoder-hidden", type=int, default=32, help="decoder hidden units per layer (it feeds the gate)")
+    t.add_argument("--decoder-layers", type=int, default=1, help="decoder hidden layers")
+    t.add_argument("--epochs", type=int, default=80, help="training epochs per fit (chosen on validation clips)")
     t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
