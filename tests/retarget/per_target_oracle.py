@@ -89,3 +89,43 @@ class PerTargetRetargeter(Retargeter):
         self._o_prev[t] = (p, R)
         self._o_held[t] = (p, R)
         return Target(p, matrix_to_quat(R), v, w, valid=True, use_rotation=use_rot)
+
+
+# The swivel geometry of services/retarget/elbow.py as it was in numpy (before it went to plain floats).
+def _norm3(a: np.ndarray) -> float:
+    return float(np.sqrt(a @ a))
+
+
+def perp_numpy(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    u = axis / max(_norm3(axis), 1e-12)
+    return v - (v @ u) * u
+
+
+def human_swivel_numpy(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
+    return perp_numpy(np.asarray(elbow, dtype=float) - shoulder, np.asarray(wrist, dtype=float) - shoulder)
+
+
+def reachable_numpy(arm, wrist: np.ndarray) -> np.ndarray:
+    a = np.asarray(wrist, dtype=float) - arm.centre
+    d = _norm3(a)
+    if d < 1e-9:
+        return arm.centre + arm.reach[0] * arm.default_swivel
+    return arm.centre + a * (min(max(d, arm.reach[0]), arm.reach[1]) / d)
+
+
+def place_numpy(arm, wrist: np.ndarray, swivel: np.ndarray) -> np.ndarray:
+    a = np.asarray(wrist, dtype=float) - arm.centre
+    d = _norm3(a)
+    if d < 1e-9:
+        return arm.centre + arm.upper * arm.default_swivel
+    u = a / d
+    lo, hi = abs(arm.upper - arm.fore) + 1e-4, arm.upper + arm.fore - 1e-6
+    d = min(max(d, lo), hi)
+    x = (arm.upper**2 - arm.fore**2 + d**2) / (2.0 * d)
+    r = np.sqrt(max(arm.upper**2 - x**2, 0.0))
+    n = perp_numpy(np.asarray(swivel, dtype=float) + 0.01 * arm.default_swivel, a)
+    nn = _norm3(n)
+    if nn < 1e-9:
+        n = perp_numpy(arm.default_swivel + np.array([0.0, 0.0, -1.0]), a)
+        nn = _norm3(n)
+    return arm.centre + x * u + r * (n / max(nn, 1e-12))

@@ -83,3 +83,21 @@ def test_batched_step_equals_the_per_target_step_through_invalid_bones_and_gaps(
         frames.append(make_frame(k + 1, stamp, offsets=offsets, invalid=invalid, drop=drop))
     for config in CONFIGS.values():
         assert compare(config, frames, robot14, workspace) == (len(frames), 5 + 2 + 3)
+
+
+def test_plain_float_swivel_geometry_equals_the_numpy_one(robot14):
+    """elbow.py's placement in plain floats: the numpy formulas' results, the degenerate branches included."""
+    from services.retarget.elbow import ArmGeometry, human_swivel
+    from tests.retarget.per_target_oracle import human_swivel_numpy, place_numpy, reachable_numpy
+
+    arm = ArmGeometry.measure(robot14, "left")
+    rng = np.random.default_rng(5)
+    cases = [arm.centre + rng.normal(scale=0.3, size=3) for _ in range(300)]
+    cases += [arm.centre.copy(), arm.centre + 1e-12, arm.centre + np.array([0.0, 0.0, 0.9])]  # at the centre, far
+    for w in cases:
+        np.testing.assert_allclose(arm.reachable(w), reachable_numpy(arm, w), rtol=0, atol=ATOL)
+        a = w - arm.centre
+        for sw in (rng.normal(size=3), a.copy(), -0.01 * arm.default_swivel, np.zeros(3)):  # along the arm: fallback
+            np.testing.assert_allclose(arm.place(w, sw), place_numpy(arm, w, sw), rtol=0, atol=ATOL)
+        sh, el = rng.normal(size=3), rng.normal(size=3)
+        np.testing.assert_allclose(human_swivel(sh, el, w), human_swivel_numpy(sh, el, w), rtol=0, atol=ATOL)
