@@ -31,8 +31,8 @@ from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
-#: Longest the real-time loop sleeps without a command, state or status due [s]: the physics it then
-#: steps in one batch (at most this many 1 ms steps late) stays well inside MAX_CATCHUP.
+#: Longest the real-time loop sleeps while the watchdog holds and no state or status is due [s]: the
+#: physics it then steps in one batch stays well inside MAX_CATCHUP.
 MAX_IDLE_WAIT = 0.01
 #: How often the joint positions are written for a restart [s].
 STATE_SAVE_PERIOD = 0.25
@@ -209,11 +209,12 @@ class SimNode:
     def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
         """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time).
 
-        The loop sleeps on the command mailbox until something is due: a command, the next
-        periodic state, the status, or at most MAX_IDLE_WAIT. It then steps the physics up to the
-        wall clock in one batch (the same 1 ms steps, each with its servo update and checks) and
-        applies the command at the simulated time it arrived, within one step, as before. Waking
-        for every 1 ms step cost ~0.2 core on this machine with no command at all.
+        While commands come, the loop waits on the command mailbox for one physics step at a time,
+        so a command is applied (and its state published) with at most a step to catch up first.
+        While the watchdog holds (no command for ``watchdog`` s, or none yet) nothing is in a hurry:
+        the loop sleeps until the next periodic state or status, or a command, at most
+        MAX_IDLE_WAIT, and then steps the physics in one batch (the same 1 ms steps, each with its
+        servo update and checks). Waking for every step cost ~0.2 core with no command at all.
         """
         core = self.core
         dt = core.dt
@@ -231,9 +232,12 @@ class SimNode:
             if duration is not None and core.time - self._sim0 >= duration:
                 break
             # Wait on the mailbox, not in a sleep: a command is applied (and, with state_on_command,
-            # its state published) as soon as it arrives. Until then nothing needs the physics.
-            state_due = self._wall0 + (self._next_pub - self._sim0)
-            wait = min(state_due + 0.1 * dt, next_status, now + MAX_IDLE_WAIT) - now
+            # its state published) as soon as it arrives.
+            if core.holding:
+                state_due = self._wall0 + (self._next_pub - self._sim0) + 0.1 * dt
+                wait = min(state_due, next_status, now + MAX_IDLE_WAIT) - now
+            else:  # until the next physics step is due
+                wait = dt - ((now - self._wall0) - (core.time - self._sim0))
             cmd = self.commands.take(timeout=wait if wait > 0 else None)
             if cmd is None:
                 continue
