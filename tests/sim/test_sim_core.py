@@ -218,8 +218,8 @@ class _ServoWatch:
 def test_resume_after_a_hold_and_command_steps_keep_every_joint_within_vmax():
     """The servo target ramps at a_max and brakes onto the command: no simulated joint passes vmax.
 
-    Before the target was acceleration-limited, this motion drove the shoulder pitch to 1.29 vmax
-    (resume) and the reversal far past it: the target's velocity stepped by 2 vmax in 1 ms.
+    Before the target was acceleration-limited, this motion drove a joint to 1.96 vmax (305 physics steps past
+    1.01 vmax): the target's velocity stepped by up to 2 vmax in 1 ms (8 a_max).
     """
     core = SimCore(config=SimConfig(watchdog=0.1))
     q0 = core.q.copy()
