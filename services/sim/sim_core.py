@@ -13,10 +13,22 @@ every torque:
   lag on a 1 Hz, 30 degree sine);
 * **gravity compensation**: ``body_gravcomp = 1`` routed through the actuators
   (``jnt_actgravcomp``), so gravity stays on in the physics and the motors hold it;
-* **first-order hold**: between two commands the target moves on with the commanded
-  velocity (up to ``max_extrapolation``), instead of a staircase at the command rate;
-* **rate limit**: the servo target never moves faster than the joint's ``vmax``, which
-  is what makes the watchdog resume (and the very first command) jump-free.
+* **first-order hold**: between two commands the reference moves on with the commanded
+  velocity (up to ``max_extrapolation``, then it brakes to a stop at ``a_max``), instead of
+  a staircase at the command rate;
+* **velocity and acceleration limits**: the servo target ``q_servo`` is not the reference
+  itself but follows it as a joint would: ``|qd_servo| <= vmax``, ``|qdd_servo| <= a_max``
+  (the profile's ``max_joint_acceleration``), braking before the position limits and
+  before the reference (:class:`~services.solver.bounds.JointBounds`, the solver's own
+  bounds), so a watchdog resume, the very first command or a jump in the commands ramp
+  up and settle instead of stepping the servo at full speed. The velocity feedforward
+  is ``qd_servo``, the target's own velocity;
+* **velocity-capped servo**: the actuator force ``kp (ctrl - q) - kv qdot`` equals
+  ``kv (u - qdot)``: the servo drives the joint towards the velocity ``u``. ``u`` is capped
+  at vmax, so a joint that lags its target catches up at vmax, not past it.
+
+What the servo cannot hold: joints pushed past vmax by the other joints' motion (coupling)
+or left behind by their effort limits (the wrist pitch/yaw motors give 5 Nm), see the README.
 
 Time is simulated time ``data.time`` [s]; the watchdog runs on it too, so the core is
 deterministic: the same commands at the same simulated times give identical states.
@@ -32,6 +44,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from services.solver.bounds import JointBounds
 from shared.messages import Header, JointCommand, Pose, RobotState
 from shared.robot.mujoco_model import MujocoRobot, build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
@@ -43,6 +56,9 @@ log = logging.getLogger("mimic.sim")
 
 #: Tolerance on the URDF limits before a commanded q counts as "beyond limits" [rad].
 LIMIT_TOL = 1e-6
+#: Fraction of a_max the servo target may use to close a gap to the reference (the braking bound
+#: towards it): the reference itself may accelerate with the rest (the solver plans with half).
+CLOSING_DECEL = 0.5
 
 
 @dataclass
@@ -54,7 +70,13 @@ class SimConfig:
         watchdog: time without commands after which the last pose is held [s].
         velocity_feedforward: feed the commanded qd into the servo damping.
         gravity_compensation: motors cancel gravity (through the actuators).
-        max_extrapolation: longest first-order hold past a command [s].
+        max_extrapolation: longest first-order hold past a command [s]; then the reference
+            brakes to a stop at ``max_acceleration``.
+        max_acceleration: acceleration cap of the servo target [rad/s^2] (None: the robot
+            profile's ``max_joint_acceleration``, the limit the solver's commands keep).
+        velocity_capped_servo: the velocity the servo drives a joint towards is capped at vmax
+            (a drive's position loop saturating at its speed limit): a lagging joint catches up at
+            vmax instead of past it.
         contacts: simulate contacts (self-collisions of the robot).
         contact_exclude_hops: no contacts between a body and its ancestors this many links
             up (the shoulder collision meshes overlap the torso: spurious contacts).
@@ -66,6 +88,8 @@ class SimConfig:
     velocity_feedforward: bool = True
     gravity_compensation: bool = True
     max_extrapolation: float = 0.05
+    max_acceleration: float | None = None
+    velocity_capped_servo: bool = True
     contacts: bool = True
     contact_exclude_hops: int = 3
     solver_id: str = "main"
@@ -79,6 +103,8 @@ class SimConfig:
                 f"max_extrapolation ({self.max_extrapolation} s) and contact_exclude_hops "
                 f"({self.contact_exclude_hops}) must be >= 0"
             )
+        if self.max_acceleration is not None and not (0 < self.max_acceleration < math.inf):
+            raise ValueError(f"max_acceleration must be > 0 rad/s^2 and finite, got {self.max_acceleration}")
 
 
 #: |qd| / vmax above which a simulated joint counts as past its velocity limit (1 % for noise).
@@ -188,6 +214,10 @@ class SimCore(FollowerCore):
         self.hard_lower = self.lower - prof.limit_margin
         self.hard_upper = self.upper + prof.limit_margin
         self.vmax = kin.vmax[order].copy()
+        amax = kin.amax[order] if cfg.max_acceleration is None else np.full(len(order), cfg.max_acceleration)
+        self.amax = np.array(amax, dtype=float)  # servo target acceleration limits (n,) [rad/s^2]
+        # The servo target's motion box per physics step: vmax, a_max, braking before the soft limits.
+        self._servo_bounds = JointBounds(self.lower, self.upper, self.vmax, self.amax)
 
         m = self.robot.model
         m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # stiff servos need implicit damping
@@ -205,7 +235,8 @@ class SimCore(FollowerCore):
         q0 = np.clip(d.qpos[self.robot.qpos_idx].copy(), self.lower, self.upper)
         self.robot.set_q(q0)
         mujoco.mj_forward(m, d)
-        self.q_servo = q0.copy()  # rate-limited servo target (n,) [rad]
+        self.q_servo = q0.copy()  # velocity- and acceleration-limited servo target (n,) [rad]
+        self.qd_servo = np.zeros_like(q0)  # its velocity (n,) [rad/s], the feedforward
         self._ref_q = q0.copy()  # last commanded q (clipped) (n,) [rad]
         self._ref_qd = np.zeros_like(q0)  # last commanded qd (n,) [rad/s]
         self._ref_t = 0.0  # sim time the last command was applied [s]
@@ -223,6 +254,7 @@ class SimCore(FollowerCore):
         self.robot.data.qvel[self.robot.dof_idx] = 0.0
         mujoco.mj_forward(self.robot.model, self.robot.data)
         self.q_servo, self._ref_q, self._hold_q = q.copy(), q.copy(), q.copy()
+        self.qd_servo[:] = 0.0
         self._ref_qd[:] = 0.0
         self.holding = True
 
@@ -300,6 +332,29 @@ class SimCore(FollowerCore):
 
     # ------------------------------------------------------------------ physics
 
+    def _reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the servo target should be at time ``t`` [s]: (q (n,) [rad], qd (n,) [rad/s]).
+
+        Holding: the held pose, at rest. Otherwise the last command held to first order for up
+        to ``max_extrapolation``, then braking to a stop at a_max (no dead stop from full speed);
+        clipped into the soft limits, at rest where clipped.
+        """
+        if self.holding:
+            return self._hold_q, np.zeros_like(self._hold_q)
+        cap = self.config.max_extrapolation
+        h = max(t - self._ref_t, 0.0)
+        qd = self._ref_qd
+        q = self._ref_q + qd * min(h, cap)
+        qd = qd.copy()
+        if h > cap:
+            speed = np.abs(qd)
+            tau = np.minimum(h - cap, speed / self.amax)  # braking time so far
+            q = q + np.sign(qd) * (speed * tau - 0.5 * self.amax * tau * tau)
+            qd = np.sign(qd) * (speed - self.amax * tau)
+        clipped = np.clip(q, self.lower, self.upper)
+        qd[clipped != q] = 0.0
+        return clipped, qd
+
     def _servo_step(self) -> None:
         d = self.robot.data
         dt = self.dt
@@ -307,24 +362,31 @@ class SimCore(FollowerCore):
         cfg = self.config
         if not self.holding and self._last_cmd_time is not None and t - self._last_cmd_time > cfg.watchdog:
             self.holding = True
-            self._hold_q = self.q_servo.copy()
+            # Hold where the servo target can stop (braking at a_max), not where it is: no turning back.
+            v = self.qd_servo
+            self._hold_q = np.clip(self.q_servo + v * np.abs(v) / (2.0 * self.amax), self.lower, self.upper)
             self.counters.holds += 1
             log.info("watchdog: no command for %.0f ms, holding (t=%.3f s)", 1e3 * (t - self._last_cmd_time), t)
-        if self.holding:
-            ref, vel = self._hold_q, None
-        else:
-            h = min(max(t + dt - self._ref_t, 0.0), cfg.max_extrapolation)
-            ref = np.clip(self._ref_q + self._ref_qd * h, self.lower, self.upper)
-            vel = self._ref_qd if h < cfg.max_extrapolation else None
-        delta = ref - self.q_servo
-        lim = self.vmax * dt
-        step = np.clip(delta, -lim, lim)
-        self.q_servo = self.q_servo + step
+        ref, ref_qd = self._reference(t + dt)
+        # Move with the reference, plus closing the gap to it no faster than braking (part of a_max) can stop
+        # at it; then within vmax, a_max and braking before the limits (JointBounds: the solver's own box).
+        gap = ref - ref_qd * dt - self.q_servo  # what is left if the target moves with the reference
+        b = self._servo_bounds
+        want = ref_qd + np.sign(gap) * b.brake(np.abs(gap), dt, decel=CLOSING_DECEL)
+        lb, ub = b.compute(self.q_servo, self.qd_servo, dt)
+        v = np.minimum(np.maximum(want, lb), ub)
+        self.qd_servo = v
+        self.q_servo = self.q_servo + v * dt
         ctrl = self.q_servo
         if cfg.velocity_feedforward:
-            limited = np.abs(delta) > lim
-            v = step / dt if vel is None else np.where(limited, step / dt, vel)
             ctrl = ctrl + self._ff_gain * v
+        if cfg.velocity_capped_servo:
+            # The actuator force kp (ctrl - q) - kv qdot = kv (u - qdot) drives the joint towards the velocity
+            # u = (ctrl - q) kp / kv: cap u at vmax (a drive's position loop saturating at its speed limit).
+            # Below the cap ctrl is unchanged; at it the servo no longer pushes a lagging joint past vmax.
+            q = d.qpos[self.robot.qpos_idx]
+            lim = self.vmax * self._ff_gain
+            ctrl = q + np.clip(ctrl - q, -lim, lim)
         d.ctrl[self.robot.act_idx] = ctrl
         mujoco.mj_step(self.robot.model, d)
         if d.ncon > self._ncon_max:
@@ -394,6 +456,7 @@ class SimCore(FollowerCore):
             "contacts": self.config.contacts,
             "contact_exclude_hops": self.config.contact_exclude_hops,
             "max_extrapolation_s": self.config.max_extrapolation,
+            "max_acceleration_rad_s2": float(np.max(self.amax)) if self.amax.size else math.nan,
             "watchdog_s": self.config.watchdog,
             "vmax_rad_s": float(np.max(self.vmax)) if self.vmax.size else math.nan,
         }

@@ -52,7 +52,8 @@ def measure_tracking(
 
     Returns:
         JSON-able dict: ``max_error_deg`` over moving joints, ``rms_error_deg``,
-        ``per_joint_max_deg``, ``max_contacts`` and the servo configuration.
+        ``per_joint_max_deg``, ``max_contacts``, ``velocity_excess_steps`` and
+        ``worst_velocity_ratio`` (the simulated joints' |qd| / vmax) and the servo configuration.
     """
     core = SimCore(profile, config)
     n = len(core.joint_names)
@@ -111,6 +112,9 @@ def measure_tracking(
         "held_joints_max_error_deg": round(float(e[:, ~moving].max()), 4) if (~moving).any() else 0.0,
         "per_joint_max_deg": per_joint,
         "max_contacts": core.max_contacts,
+        # the simulated joints' own speed: physics steps past vmax (+1 %) and the largest |qd| / vmax
+        "velocity_excess_steps": core.counters.velocity_excess_steps,
+        "worst_velocity_ratio": round(core.counters.worst_velocity_ratio, 4),
         "rejected": sum(core.counters.rejects.values()),
         "n_joints": n,
         "servo": core.info(),

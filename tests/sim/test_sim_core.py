@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.sim.sim_core import SimConfig, SimCore
+from services.sim.sim_core import VELOCITY_TOLERANCE, SimConfig, SimCore
 from services.sim.tracking import measure_tracking
 from shared.messages import Header, JointCommand
 from shared.robot.pinocchio_model import build_robot_model
@@ -30,11 +30,12 @@ def _cmd(core: SimCore, q, qd=None, seq=0, joints=None) -> JointCommand:
     )
 
 
-def test_arms_track_a_1hz_30deg_sine_within_2_degrees():
+def test_arms_track_a_1hz_30deg_sine_within_0_6_degrees():
     r = measure_tracking(amplitude_deg=30.0, frequency_hz=1.0, duration=2.0, settle=0.5, command_rate=100.0)
     assert r["moving_joints"] == 14 and r["min_amplitude_deg"] == 30.0
     assert r["rejected"] == 0
-    assert r["max_error_deg"] < 2.0, r
+    # Measured 0.48 deg (RMS 0.20) with the velocity- and acceleration-limited servo target; 0.61 before it.
+    assert r["max_error_deg"] < 0.6, r
     # The velocity feedforward is what gets it there: plain PD servos lag by several degrees.
     plain = measure_tracking(duration=2.0, command_rate=100.0, config=SimConfig(velocity_feedforward=False))
     assert plain["max_error_deg"] > 2.0 * r["max_error_deg"], (plain["max_error_deg"], r["max_error_deg"])
@@ -186,3 +187,106 @@ def test_overlapping_shoulder_meshes_do_not_collide_but_the_arm_still_hits_the_b
     pairs = _contact_pairs(3)
     assert not pairs & spurious
     assert ("left_hip_roll_link", "left_wrist_yaw_link") in pairs  # real self-collision kept
+
+
+class _ServoWatch:
+    """Steps a core one physics step at a time and keeps the worst figures of the motion.
+
+    ``joint``: largest simulated |qd| / vmax over all joints; ``target_v``, ``target_a``: largest
+    |velocity| / vmax and |acceleration| / a_max of the servo target ``q_servo``, from its finite
+    differences (so they hold whatever the servo keeps internally).
+    """
+
+    def __init__(self, core: SimCore):
+        self.core = core
+        self.prev_q = core.q_servo.copy()
+        self.prev_v = np.zeros_like(self.prev_q)
+        self.joint = self.target_v = self.target_a = 0.0
+
+    def step(self, n: int) -> None:
+        core = self.core
+        for _ in range(n):
+            core.step_physics(1)
+            v = (core.q_servo - self.prev_q) / core.dt
+            a = (v - self.prev_v) / core.dt
+            self.prev_q, self.prev_v = core.q_servo.copy(), v
+            self.target_v = max(self.target_v, float(np.max(np.abs(v) / core.vmax)))
+            self.target_a = max(self.target_a, float(np.max(np.abs(a) / core.amax)))
+            self.joint = max(self.joint, float(np.max(np.abs(core.state().qd) / core.vmax)))
+
+
+def test_resume_after_a_hold_and_command_steps_keep_every_joint_within_vmax():
+    """The servo target ramps at a_max and brakes onto the command: no simulated joint passes vmax.
+
+    Before the target was acceleration-limited, this motion drove a joint to 1.96 vmax (305 physics steps past
+    1.01 vmax): the target's velocity stepped by up to 2 vmax in 1 ms (8 a_max).
+    """
+    core = SimCore(config=SimConfig(watchdog=0.1))
+    q0 = core.q.copy()
+    i = core.joint_names.index("left_shoulder_pitch_joint")
+    e = core.joint_names.index(core.robot.profile.arms["left"].elbow)
+    assert core.apply(_cmd(core, q0, seq=0))
+    watch = _ServoWatch(core)
+    watch.step(300)
+    assert core.holding
+    # Resume 0.6 rad away, commands at 500 Hz (a solver that ran on while the sim held).
+    far = q0.copy()
+    far[i] -= 0.6
+    seq = 1
+    for _ in range(60):  # 120 ms: still on its way at full speed
+        assert core.apply(_cmd(core, far, seq=seq))
+        seq += 1
+        watch.step(2)
+    assert watch.prev_v[i] < -0.9 * core.vmax[i], "the shoulder should be moving at about vmax here"
+    # A command step the other way while the shoulder runs at vmax; then one on the elbow.
+    back = q0.copy()
+    back[i] += 0.3
+    for _ in range(250):
+        assert core.apply(_cmd(core, back, seq=seq))
+        seq += 1
+        watch.step(2)
+    back[e] -= 0.6
+    for _ in range(150):
+        assert core.apply(_cmd(core, back, seq=seq))
+        seq += 1
+        watch.step(2)
+    assert abs(core.q[i] - back[i]) < np.deg2rad(0.5) and abs(core.q[e] - back[e]) < np.deg2rad(0.5)
+    assert watch.target_v <= 1 + 1e-9 and watch.target_a <= 1 + 1e-6, (watch.target_v, watch.target_a)
+    assert watch.joint <= VELOCITY_TOLERANCE, watch.joint
+    assert core.counters.velocity_excess_steps == 0, core.counters
+
+
+def test_commands_stopping_at_full_speed_brake_at_amax_then_hold():
+    """Commands stop while a joint runs at vmax: the first-order hold runs on, then brakes (no dead stop),
+    and the watchdog holds where the target can stop, without turning back.
+
+    (Only the stop is judged: reaching vmax at the end of the ramp the simulated joint itself overshoots it by a
+    few percent, 1.07 vmax here: the servo's lag during the acceleration, see the README's Servo section.)"""
+    core = SimCore(config=SimConfig(watchdog=0.1, max_extrapolation=0.05))
+    i = core.joint_names.index("left_shoulder_yaw_joint")
+    q = core.q.copy()
+    qd = np.zeros_like(q)
+    q[i] = core.lower[i] + 0.3
+    core.robot.set_q(q)
+    core.q_servo = q.copy()
+    core._ref_q = q.copy()
+    watch = _ServoWatch(core)
+    acc = 0.5 * core.amax[i]  # a feasible command: up to vmax at half a_max, then on at vmax for 0.1 s
+    ramp = core.vmax[i] / acc
+    for k in range(round((ramp + 0.1) / 0.002)):
+        t = core.time
+        last = q.copy()
+        last[i] += 0.5 * acc * t * t if t < ramp else 0.5 * acc * ramp * ramp + core.vmax[i] * (t - ramp)
+        qd[i] = min(acc * t, core.vmax[i])
+        assert core.apply(_cmd(core, last, qd, seq=k))
+        watch.step(2)
+    watch = _ServoWatch(core)  # from the last command on
+    watch.prev_v = qd.copy()  # moving at vmax
+    watch.step(400)  # extrapolation, braking, hold
+    assert core.holding
+    # It comes to rest where the reference does: 50 ms on at vmax past the last command, then braking at a_max.
+    stop = last[i] + core.vmax[i] * 0.05 + core.vmax[i] ** 2 / (2 * core.amax[i])
+    assert core.q_servo[i] == pytest.approx(stop, abs=1e-6)
+    assert watch.target_a <= 1 + 1e-6 and watch.target_v <= 1 + 1e-9
+    assert watch.joint <= VELOCITY_TOLERANCE
+    assert abs(core.q[i] - core.q_servo[i]) < np.deg2rad(0.5)
