@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 BUDGET_US = 50.0
+#: Width of the reference layer timed beside the policy.
+REF_WIDTH = 128
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -32,27 +34,63 @@ def main(args: argparse.Namespace) -> int:
     S[:, 0] = 1.0
     S[:, 4:7] = [[0.2, 0.2, 0.0], [0.2, -0.2, 0.0]]
     S[:, 7:] = rng.normal(0, 0.3, (2, 7))
+    # Same-run references, timed in the same loop as the policy (tick by tick, interleaved), so a reader
+    # can tell a slow VM from slow code: a no-op Python call, and one dense float32 layer the size of the
+    # policy's hidden layers (x (1, 128) @ W (128, 128), tanh) on fixed data.
+    x = rng.normal(size=(1, REF_WIDTH)).astype(np.float32)
+    W = (rng.normal(size=(REF_WIDTH, REF_WIDTH)) / np.sqrt(REF_WIDTH)).astype(np.float32)
+    y = np.empty((1, REF_WIDTH), np.float32)
+
+    def layer() -> None:
+        np.tanh(np.matmul(x, W, out=y), out=y)
+
+    def noop() -> None:
+        return None
+
     for _ in range(500):  # warm-up
         pol.act(S)
+        layer()
     us = np.empty(args.ticks)
-    cpu0 = time.process_time()
+    ref = np.empty((2, args.ticks))
+    clock = time.perf_counter
+    cpu_act = 0.0
     for i in range(args.ticks):
-        t0 = time.perf_counter()
+        c0 = time.process_time()
+        t0 = clock()
         pol.act(S)
-        us[i] = (time.perf_counter() - t0) * 1e6
-    cpu_us = (time.process_time() - cpu0) / args.ticks * 1e6
+        t1 = clock()
+        cpu_act += time.process_time() - c0
+        layer()
+        t2 = clock()
+        noop()
+        t3 = clock()
+        us[i], ref[0, i], ref[1, i] = t1 - t0, t2 - t1, t3 - t2
+    us *= 1e6
+    ref *= 1e6
+    p50 = float(np.percentile(us, 50))
+    layer_p50 = float(np.percentile(ref[0], 50))
     out = {
         "what": "PosturePolicy.act: encoder + decoder + gate, both arms, one tick (numpy only)",
         "ticks": args.ticks,
         "us_mean": float(us.mean()),
-        "us_p50": float(np.percentile(us, 50)),
+        "us_p50": p50,
         "us_p99": float(np.percentile(us, 99)),
         "us_min": float(us.min()),
         # CPU time of this process per tick: what the inference costs, without the waits for a CPU
         # that wall-clock figures include on a loaded machine.
-        "cpu_us_mean": float(cpu_us),
+        "cpu_us_mean": float(cpu_act / args.ticks * 1e6),
         "budget_us": BUDGET_US,
+        "reference": {
+            "what": f"same loop, after each tick: one float32 layer tanh(x (1, {REF_WIDTH}) @ W ({REF_WIDTH}, "
+            f"{REF_WIDTH})) and a no-op Python call",
+            "layer_us_p50": layer_p50,
+            "layer_us_min": float(ref[0].min()),
+            "noop_us_p50": float(np.percentile(ref[1], 50)),
+            # the VM's speed cancels in this ratio: compare it across runs and machines
+            "p50_in_layers": p50 / layer_p50,
+        },
         "policy": str(args.policy),
+        "network": pol.meta.get("network"),
     }
     text = json.dumps(out, indent=2)
     if args.json:

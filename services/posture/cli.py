@@ -39,8 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
     t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
-    t.add_argument("--hidden", type=int, default=128, help="hidden units per layer (2 hidden layers)")
-    t.add_argument("--epochs", type=int, default=40, help="training epochs per fit")
+    t.add_argument("--hidden", type=int, default=128, help="encoder hidden units per layer (2 hidden layers)")
+    t.add_argument("--decoder-hidden", type=int, default=32, help="decoder hidden units per layer (it feeds the gate)")
+    t.add_argument("--decoder-layers", type=int, default=1, help="decoder hidden layers")
+    t.add_argument("--epochs", type=int, default=80, help="training epochs per fit (chosen on validation clips)")
     t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
@@ -123,7 +125,8 @@ def _train(args: argparse.Namespace) -> int:
     train = [clips[p] for p in train_paths]
     test = [clips[p] for p in test_paths] or train[-1:]
     posture = args.action_kind != "velocity"  # posture and elbow: labels from the hand pose alone
-    tcfg = TrainConfig(hidden=args.hidden, epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
+    tcfg = TrainConfig(hidden=args.hidden, decoder_hidden=args.decoder_hidden, decoder_layers=args.decoder_layers,
+                       epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
                        input_noise=args.input_noise)  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
@@ -146,7 +149,7 @@ def _train(args: argparse.Namespace) -> int:
         "mirror_signs": [float(x) for x in arms.mirror] if args.mirror else None,
         "network": {
             "encoder": [14, tcfg.hidden, tcfg.hidden, 3],
-            "decoder": [17, tcfg.hidden, tcfg.hidden, 6],
+            "decoder": [17, *[tcfg.decoder_hidden] * tcfg.decoder_layers, 6],
             "activation": "tanh (input and hidden layers), linear output",
         },
         "train_clips": [Path(p).name for p in train_paths],

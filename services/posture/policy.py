@@ -95,53 +95,68 @@ def _with_bias(W: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.vstack([W, b[None, :]])
 
 
-def _fast_network(enc: list[Layers], dec: list[Layers]) -> dict:
+def _fast_network(enc: list[Layers], dec: list[Layers], fold: bool) -> dict:
     """Stacked per-arm weights and preallocated buffers of :meth:`PosturePolicy.act`.
 
-    Encoder layer 0 reads the state ``(Q, p, q)``; decoder layer 0 reads ``(a, q, x_d)`` with
-    ``x_d = (Q, p)``: the state part of both goes into one product ``M0`` (2, 15, He + Hd) and only the
-    action part ``dec_Wa`` (2, 3, Hd) waits for the encoder.
+    The state lives at the tail of the buffer ``X`` (2, 1, H + 15) = ``[h | 1 | S]``, whose head ``h`` is
+    the encoder's last hidden layer: the encoder's layer 0 reads the tail ``[1 | S]``, and (``fold``) one
+    product of the whole buffer gives the encoder's output ``a`` and the decoder's layer-0
+    pre-activation ``a Wa + (x_d, q) W + b`` together (the encoder's linear output layer folded into the
+    decoder's first layer, the decoder's state rows and bias beside it). Without ``fold`` (velocity kind:
+    the decoder reads the clipped action) the action goes into ``Y = [a | 1 | S]`` first.
     """
     dt = FAST_DTYPE
+    A, SD = ACTION_DIM, STATE_DIM
 
     def stack(mats):
         return np.ascontiguousarray(np.stack(mats), dtype=dt)
 
-    He, Hd = enc[0][0][1].shape[0], dec[0][0][1].shape[0]
-    M0 = []
-    for e, d in zip(enc, dec):
-        (We, be), (Wd, bd) = e[0], d[0]
-        dec_state = np.vstack([Wd[ACTION_DIM + 7 :], Wd[ACTION_DIM : ACTION_DIM + 7]])  # rows (x_d, q) = S order
-        M0.append(np.hstack([_with_bias(We, be), _with_bias(dec_state, bd)]))
-    f = {"He": He, "M0": stack(M0), "dec_Wa": stack([d[0][0][:ACTION_DIM] for d in dec])}
-    f["enc_W"] = [stack([_with_bias(*e[k]) for e in enc]) for k in range(1, len(enc[0]))]
-    # a = h W + b and the decoder's layer-0 term a Wa = h (W Wa) + b Wa: one product gives both.
-    # Columns padded to a multiple of 8 (zeros): measured 20 % faster than the odd 3 + Hd.
-    pad = -(ACTION_DIM + Hd) % 8
-    f["enc_Wc"] = stack([np.hstack([_with_bias(*e[-1]), _with_bias(*e[-1]) @ d[0][0][:ACTION_DIM],
-                                    np.zeros((e[-1][0].shape[0] + 1, pad))]) for e, d in zip(enc, dec)])  # fmt: skip
-    f["C"] = np.empty((2, 1, ACTION_DIM + Hd + pad), dt)
-    f["dec_W"] = [stack([_with_bias(*d[k]) for d in dec]) for k in range(1, len(dec[0]))]
-    f["u"] = np.ones((2, 1, STATE_DIM + 1), dt)
-    f["P0"] = np.empty((2, 1, He + Hd), dt)
-    # Hidden activations with a trailing constant 1 (the next layer's bias row).
-    f["enc_h"] = [np.ones((2, 1, W.shape[1] + 1), dt) for W in [e0[0] for e0 in enc[0]][:-1]]
-    f["dec_h"] = [np.ones((2, 1, W.shape[1] + 1), dt) for W in [d0[0] for d0 in dec[0]][:-1]]
-    f["enc_P"] = [np.empty((2, 1, W.shape[2]), dt) for W in f["enc_W"][:-1]]
-    f["dec_P"] = [np.empty((2, 1, W.shape[2]), dt) for W in f["dec_W"][:-1]]
-    f["a"] = np.empty((2, 1, ACTION_DIM), dt)
-    f["dec_T"] = np.empty((2, 1, Hd), dt)
+    def dec_state(Wd):  # decoder rows of (x_d, q) in state order S = (Q, p, q) = (x_d, q)
+        return np.vstack([Wd[A + 7 :], Wd[A : A + 7]])
+
+    He = [W.shape[1] for W, _ in enc[0][:-1]]  # encoder hidden widths
+    Hd = [W.shape[1] for W, _ in dec[0][:-1]]  # decoder hidden widths
+    HL = He[-1]
+    f = {"X": np.ones((2, 1, HL + 1 + SD), dt)}
+    f["X_S"] = f["X"][:, 0, HL + 1 :]
+    f["u"] = f["X"][:, :, HL:]  # [1 | S]
+    f["M0"] = stack([np.vstack([e[0][1][None, :], e[0][0]]) for e in enc])  # (2, 15, He0): bias row first
+    # Encoder hidden buffers with a trailing constant 1 (the next layer's bias row); the last is X's head.
+    hbuf = [np.ones((2, 1, h + 1), dt) for h in He[:-1]] + [f["X"][:, :, : HL + 1]]
+    f["enc_P"] = [np.empty((2, 1, h), dt) for h in He]
+    f["enc_out"] = [b[:, :, :-1] for b in hbuf]
+    f["enc_in"] = hbuf[:-1]  # inputs of encoder layers 1..: the previous hidden buffer
+    f["enc_W"] = [stack([_with_bias(*e[k]) for e in enc]) for k in range(1, len(He))]
+    pad = -(A + Hd[0]) % 8  # columns padded to a multiple of 8 (zeros): measured ~20 % faster than odd widths
+    if fold:
+        # [h | 1 | S] @ [[W_out, W_out Wa, 0], [b_out, b_out Wa + b_d, 0], [0, W_state, 0]]
+        Wc = []
+        for e, d in zip(enc, dec):
+            (Wo, bo), (Wd, bd) = e[-1], d[0]
+            Wa = Wd[:A]
+            top = np.hstack([Wo, Wo @ Wa, np.zeros((HL, pad))])
+            one = np.hstack([bo, bo @ Wa + bd, np.zeros(pad)])[None, :]
+            low = np.hstack([np.zeros((SD, A)), dec_state(Wd), np.zeros((SD, pad))])
+            Wc.append(np.vstack([top, one, low]))
+        f["Wc"] = stack(Wc)
+        f["C"] = np.empty((2, 1, A + Hd[0] + pad), dt)
+        f["C_a"], f["C_dec"] = f["C"][:, 0, :A], f["C"][:, :, A : A + Hd[0]]
+    else:
+        f["W_out"] = stack([_with_bias(*e[-1]) for e in enc])  # (2, HL + 1, 3)
+        f["X_h"] = f["X"][:, :, : HL + 1]
+        f["Y"] = np.ones((2, 1, A + 1 + SD), dt)
+        f["Y_a"], f["Y_S"] = f["Y"][:, :, :A], f["Y"][:, 0, A + 1 :]
+        f["Wy"] = stack([np.vstack([d[0][0][:A], d[0][1][None, :], dec_state(d[0][0])]) for d in dec])
+        f["T"] = np.empty((2, 1, Hd[0]), dt)
+    gbuf = [np.ones((2, 1, h + 1), dt) for h in Hd]
+    f["dec_h0"], f["dec_last"] = gbuf[0][:, :, :-1], gbuf[-1]
+    f["dec_hidden"] = [(gbuf[k], stack([_with_bias(*d[k + 1]) for d in dec]), np.empty((2, 1, Hd[k + 1]), dt),
+                        gbuf[k + 1][:, :, :-1]) for k in range(len(Hd) - 1)]  # fmt: skip
+    f["enc_hidden"] = list(zip(f["enc_in"], f["enc_W"], f["enc_P"][1:], f["enc_out"][1:]))
+    f["enc_P"] = f["enc_P"][0]
+    f["W_z"] = stack([_with_bias(*d[-1]) for d in dec])
     f["z"] = np.empty((2, 1, ARM_STATE_DIM), dt)
-    # Views used every tick, made once.
-    f["u_S"] = f["u"][:, 0, :STATE_DIM]
-    f["P0_enc"], f["P0_dec"] = f["P0"][:, :, :He], f["P0"][:, :, He:]
-    f["enc_h0"], f["dec_h0"] = f["enc_h"][0][:, :, :-1], f["dec_h"][0][:, :, :-1]
-    for net in ("enc", "dec"):  # (weights, pre-activation buffer, next activation) of each hidden layer
-        hid = zip(f[f"{net}_W"][:-1], f[f"{net}_P"], f[f"{net}_h"][1:])
-        f[f"{net}_hidden"] = [(W, P, h[:, :, :-1]) for W, P, h in hid]
-    f["C_a"], f["C_dec"] = f["C"][:, 0, :ACTION_DIM], f["C"][:, :, ACTION_DIM : ACTION_DIM + Hd]
-    f["a64"] = np.empty((2, ACTION_DIM))
-    f["qd0"] = np.zeros((2, ACTION_DIM))
+    f["qd0"] = np.zeros((2, A))
     f["x_dv"] = np.empty((2, 3))
     f["gap"] = np.empty(2)
     f["gate"] = np.empty(2, bool)
@@ -163,7 +178,8 @@ class PolicyOutput:
     Attributes:
         qd0: (2, 3) null-space velocities [rad/s], within ±ACTION_LIMIT. x_dv: (2, 3) virtual targets [m].
         gap: (2,) |x_dv - p| [m]. gate: (2,) True where the action may be used.
-        action: (2, 3) the encoder's output: q̇₀ itself, or the shoulder posture q* [rad] (posture kind).
+        action: (2, 3) the encoder's output: q̇₀ itself, the shoulder posture q* [rad] (posture kind) or the
+            elbow [m] (elbow kind); float32 from :meth:`PosturePolicy.act`.
     """
 
     qd0: np.ndarray
@@ -205,10 +221,14 @@ class PosturePolicy:
         self._len = np.array([[a.upper, a.fore] for a in self.arms])
         #: the encoder's output layer folds into the decoder's first (the decoder reads the raw action)
         self._fold = self.kind != "velocity"
-        self._fast = _fast_network(enc, dec)
-        self._geo = self._centre.tolist()  # the gate's constants as floats (plain arithmetic per tick)
-        self._geo_len = self._len.tolist()
-        self._thr = self.threshold.tolist()
+        self._fast = _fast_network(enc, dec, self._fold)
+        self._posture, self._velocity = self.kind == "posture", self.kind == "velocity"
+        # the gate's constants as floats (plain arithmetic per tick): centre (3), L_u, L_f, threshold
+        self._gate_const = [(*c, *ln, t) for c, ln, t in zip(self._centre.tolist(), self._len.tolist(),
+                                                              self.threshold.tolist())]  # fmt: skip
+        f = self._fast
+        action = f["C_a"] if self._fold else f["Y_a"][:, 0]
+        self._out = PolicyOutput(f.pop("qd0"), f.pop("x_dv"), f.pop("gap"), f.pop("gate"), action)
 
     @property
     def robot(self) -> str:
@@ -241,61 +261,56 @@ class PosturePolicy:
     def act(self, S: np.ndarray) -> PolicyOutput:
         """Actions, virtual targets and gate for states S (2, 14) (left, right): the real-time path.
 
-        The numbers of :meth:`act_reference` (float32 products: within 1e-6 of it) in a dozen numpy
+        The numbers of :meth:`act_reference` (float32 products: within 1e-6 of it) in about ten numpy
         calls: both arms at once (per-arm weights stacked, one batched product per layer), biases as a
-        constant-1 input, the encoder's first layer and the decoder's ``(x_d, q)`` part in one product,
-        the encoder's linear output layer folded into the decoder's first layer (when the decoder reads
-        the raw output), preallocated buffers, and the gate's and action's dozen scalars in plain float
-        arithmetic. The returned arrays are those buffers: valid until the next call.
+        constant-1 input, the state at the tail of the encoder's last hidden buffer so that one product
+        gives the action and the decoder's layer-0 pre-activation (the encoder's linear output layer
+        folded into the decoder's first layer, when the decoder reads the raw output), preallocated
+        buffers, and the gate's dozen scalars in plain float arithmetic. The returned object and its
+        arrays are the policy's buffers: valid until the next call.
         """
         f = self._fast
         mm, th = np.matmul, np.tanh
-        f["u_S"][:] = S  # u (2, 1, 15) = (Q, p, q, 1)
-        mm(f["u"], f["M0"], out=f["P0"])  # (2, 1, He + Hd): encoder layer 0 | decoder's (x_d, q, 1) part
-        h = f["enc_h"]
-        th(f["P0_enc"], out=f["enc_h0"])
-        for k, (W, P, out) in enumerate(f["enc_hidden"]):
-            th(mm(h[k], W, out=P), out=out)
-        T = f["dec_T"]
+        f["X_S"][:] = S  # X (2, 1, H + 15) = [h | 1 | S]
+        th(mm(f["u"], f["M0"], out=f["enc_P"]), out=f["enc_out"][0])  # encoder layer 0 reads [1 | S]
+        for h, W, P, out in f["enc_hidden"]:
+            th(mm(h, W, out=P), out=out)
         if self._fold:
-            mm(h[-1], f["enc_Wc"], out=f["C"])  # (2, 1, 3 + Hd): action | its decoder layer-0 part
-            a32 = f["C_a"]
-            np.add(f["C_dec"], f["P0_dec"], out=T)
+            mm(f["X"], f["Wc"], out=f["C"])  # (2, 1, 3 + Hd): action | decoder layer-0 pre-activation
+            th(f["C_dec"], out=f["dec_h0"])
         else:  # velocity kind: the decoder reads the bounded action
-            a32 = mm(h[-1], f["enc_W"][-1], out=f["a"])
-            np.minimum(np.maximum(a32, -ACTION_LIMIT, out=a32), ACTION_LIMIT, out=a32)
-            np.add(mm(a32, f["dec_Wa"], out=T), f["P0_dec"], out=T)
-            a32 = a32[:, 0]
-        g = f["dec_h"]
-        th(T, out=f["dec_h0"])
-        for k, (W, P, out) in enumerate(f["dec_hidden"]):
-            th(mm(g[k], W, out=P), out=out)
-        z = mm(g[-1], f["dec_W"][-1], out=f["z"]).tolist()  # per arm: upper-arm, forearm directions
-        act = a32.tolist()
+            Ya = f["Y_a"]
+            mm(f["X_h"], f["W_out"], out=Ya)
+            np.clip(Ya, -ACTION_LIMIT, ACTION_LIMIT, out=Ya)
+            f["Y_S"][:] = S
+            th(mm(f["Y"], f["Wy"], out=f["T"]), out=f["dec_h0"])
+        for g, W, P, out in f["dec_hidden"]:
+            th(mm(g, W, out=P), out=out)
+        z = mm(f["dec_last"], f["W_z"], out=f["z"]).tolist()  # per arm: upper-arm, forearm directions
         s = S.tolist()
-        x_dv, gap, gate = f["x_dv"], f["gap"], f["gate"]
-        qd = [[0.0] * ACTION_DIM, [0.0] * ACTION_DIM]  # elbow kind: zero (the caller tracks the target)
-        for i in (0, 1):
-            si = s[i]
-            if self.kind == "posture":  # K (q* - q), bounded; the shoulder joints are state entries 7..9
-                qd[i] = [min(max(self.gain * (x - q), -ACTION_LIMIT), ACTION_LIMIT) for x, q in zip(act[i], si[7:10])]
-            elif self.kind == "velocity":
-                qd[i] = act[i]
-            # Gate: x_dv = c + L_u u/|u| + L_f f/|f|, gap = |x_dv - p|; a non-finite state entry closes its
-            # arm's gate (NaN compares False; the sum also catches inf).
-            ux, uy, uz, fx, fy, fz = z[i][0]
-            (cx, cy, cz), (Lu, Lf), (px, py, pz) = self._geo[i], self._geo_len[i], si[4:7]
+        out = self._out
+        if self._posture:  # K (q* - q), bounded; the shoulder joints are state entries 7..9
+            act, K, L = out.action.tolist(), self.gain, ACTION_LIMIT
+            out.qd0[:] = [[min(max(K * (x - q), -L), L) for x, q in zip(act[i], s[i][7:10])] for i in (0, 1)]
+        elif self._velocity:
+            np.copyto(out.qd0, out.action)
+        # elbow kind: qd0 stays zero (the caller tracks the target)
+        # Gate: x_dv = c + L_u u/|u| + L_f f/|f|, gap = |x_dv - p|; a non-finite state entry closes its
+        # arm's gate (NaN compares False; the sum also catches inf).
+        xs, ds, gs = [], [], []
+        for (zi,), si, (cx, cy, cz, Lu, Lf, thr) in zip(z, s, self._gate_const):
+            ux, uy, uz, fx, fy, fz = zi
             ku = Lu / max(math.sqrt(ux * ux + uy * uy + uz * uz), 1e-9)
             kf = Lf / max(math.sqrt(fx * fx + fy * fy + fz * fz), 1e-9)
             x, y, w = cx + ku * ux + kf * fx, cy + ku * uy + kf * fy, cz + ku * uz + kf * fz
-            d = math.sqrt((x - px) ** 2 + (y - py) ** 2 + (w - pz) ** 2)
-            x_dv[i] = (x, y, w)
-            gap[i] = d
-            gate[i] = d <= self._thr[i] and math.isfinite(sum(si))
-        a, qd0 = f["a64"], f["qd0"]
-        a[:] = act
-        qd0[:] = qd
-        return PolicyOutput(qd0, x_dv, gap, gate, a)
+            d = math.hypot(x - si[4], y - si[5], w - si[6])
+            xs.append((x, y, w))
+            ds.append(d)
+            gs.append(d <= thr and math.isfinite(sum(si)))
+        out.x_dv[:] = xs
+        out.gap[:] = ds
+        out.gate[:] = gs
+        return out
 
     def act_reference(self, S: np.ndarray) -> PolicyOutput:
         """:meth:`act` written plainly, per arm in float64 (the definition the fast path is tested against)."""

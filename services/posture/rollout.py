@@ -272,7 +272,7 @@ def rollout(
         if driver == "policy":
             out = policy.act(S)
             # copies: the policy's output arrays are its buffers, overwritten by the next call
-            A_pi, gate, qd0_pi = out.action.copy(), out.gate.copy(), out.qd0.copy()
+            A_pi, gate, qd0_pi = out.action.astype(float), out.gate.copy(), out.qd0.copy()
         qd = np.zeros(robot.nq)
         for i in range(2):
             J = conf.get_frame_jacobian(wrist_names[i])[:, arms.arm[i]]

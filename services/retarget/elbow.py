@@ -18,12 +18,12 @@ residual about 0.5 cm).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from shared.robot.pinocchio_model import RobotModel
-from shared.rotations import norm3
 from shared.targets import elbow_of, wrist_of
 
 #: Swivel direction used when the operator's arm is straight [m]: blended in with this weight,
@@ -90,11 +90,13 @@ class ArmGeometry:
 
     def reachable(self, wrist: np.ndarray) -> np.ndarray:
         """The wrist target (3,) [m] moved radially into the reach shell around the shoulder centre."""
-        a = np.asarray(wrist, dtype=float) - self.centre
-        d = norm3(a)
+        c = _xyz(self.centre)
+        a = _diff(_xyz(wrist), c)
+        d = _norm(a)
         if d < 1e-9:
             return self.centre + self.reach[0] * self.default_swivel
-        return self.centre + a * (min(max(d, self.reach[0]), self.reach[1]) / d)
+        k = min(max(d, self.reach[0]), self.reach[1]) / d
+        return np.array([c[0] + a[0] * k, c[1] + a[1] * k, c[2] + a[2] * k])
 
     def place(self, wrist: np.ndarray, swivel: np.ndarray) -> np.ndarray:
         """Elbow target (3,) [m] for a wrist target (3,) [m] and a swivel direction (3,).
@@ -102,29 +104,54 @@ class ArmGeometry:
         ``swivel`` is the operator's elbow offset from their shoulder-wrist line (any length;
         only its direction perpendicular to the robot's shoulder-wrist line is used).
         """
-        a = np.asarray(wrist, dtype=float) - self.centre
-        d = norm3(a)
+        c = _xyz(self.centre)
+        a = _diff(_xyz(wrist), c)
+        d = _norm(a)
         if d < 1e-9:
             return self.centre + self.upper * self.default_swivel
-        u = a / d
+        u = (a[0] / d, a[1] / d, a[2] / d)
         lo, hi = abs(self.upper - self.fore) + 1e-4, self.upper + self.fore - 1e-6
         d = min(max(d, lo), hi)  # an out-of-reach wrist: elbow on the stretched (or folded) arm
         x = (self.upper**2 - self.fore**2 + d**2) / (2.0 * d)
-        r = np.sqrt(max(self.upper**2 - x**2, 0.0))
-        n = _perp(np.asarray(swivel, dtype=float) + _STRAIGHT_BLEND * self.default_swivel, a)
-        nn = norm3(n)
+        r = math.sqrt(max(self.upper**2 - x**2, 0.0))
+        s, n0 = _xyz(swivel), _xyz(self.default_swivel)
+        n = _perp3((s[0] + _STRAIGHT_BLEND * n0[0], s[1] + _STRAIGHT_BLEND * n0[1], s[2] + _STRAIGHT_BLEND * n0[2]), a)
+        nn = _norm(n)
         if nn < 1e-9:
-            n = _perp(self.default_swivel + np.array([0.0, 0.0, -1.0]), a)
-            nn = norm3(n)
-        return self.centre + x * u + r * (n / max(nn, 1e-12))
+            n = _perp3((n0[0], n0[1], n0[2] - 1.0), a)
+            nn = _norm(n)
+        m = max(nn, 1e-12)
+        return np.array([c[i] + x * u[i] + r * (n[i] / m) for i in range(3)])
+
+
+# Plain floats for the 3-vectors here: numpy's per-call overhead was most of the retarget step (two
+# placements a frame, at up to 1 kHz); the arithmetic is the same.
+def _xyz(v) -> tuple[float, float, float]:
+    x, y, z = v.tolist() if isinstance(v, np.ndarray) else (float(e) for e in v)
+    return x, y, z
+
+
+def _diff(a: tuple, b: tuple) -> tuple[float, float, float]:
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+def _norm(a: tuple) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def _perp3(v: tuple, axis: tuple) -> tuple[float, float, float]:
+    m = max(_norm(axis), 1e-12)
+    u = (axis[0] / m, axis[1] / m, axis[2] / m)
+    k = v[0] * u[0] + v[1] * u[1] + v[2] * u[2]
+    return v[0] - k * u[0], v[1] - k * u[1], v[2] - k * u[2]
 
 
 def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Component of v (3,) perpendicular to axis (3,)."""
-    u = axis / max(norm3(axis), 1e-12)
-    return v - (v @ u) * u
+    return np.array(_perp3(_xyz(v), _xyz(axis)))
 
 
 def human_swivel(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
     """Operator elbow offset (3,) [m] from their shoulder-wrist line (pelvis frame)."""
-    return _perp(np.asarray(elbow, dtype=float) - shoulder, np.asarray(wrist, dtype=float) - shoulder)
+    sh = _xyz(shoulder)
+    return np.array(_perp3(_diff(_xyz(elbow), sh), _diff(_xyz(wrist), sh)))

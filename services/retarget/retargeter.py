@@ -26,6 +26,7 @@ import logging
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 
+import mujoco
 import numpy as np
 
 from services.retarget.calibration import (
@@ -48,7 +49,7 @@ from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
 from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
-from shared.messages import Header, HumanFrame, Target, TaskTargets
+from shared.messages import Bone, Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.robot.profile import upper_arm_frame as upper_arm_link
@@ -244,10 +245,19 @@ class Retargeter(FrameIntake):
     def _reset_stream(self) -> None:
         """Forget frame history (velocities, last seq/stamp, held poses, incremental anchors)."""
         self._guard = SequenceGuard(resync_after=self.config.resync_after)
-        self._prev: dict[str, tuple[np.ndarray, np.ndarray] | None] = dict.fromkeys(TARGET_NAMES)
-        self._held = {t: (p.copy(), R.copy()) for t, (p, R) in self.robot_rest.items()}
-        self._vfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
-        self._wfilt = {t: LowPassVelocity(self.config.velocity_tau, self.config.max_gap) for t in TARGET_NAMES}
+        n = len(TARGET_NAMES)
+        # Per target, one row each, in TARGET_NAMES order (all four targets go through one array
+        # operation per step, not ~25 small ones per target).
+        #: last published valid position (n, 3) [m] and orientation (n, 3, 3); the robot rest pose before any
+        self._held_p = np.array([self.robot_rest[t][0] for t in TARGET_NAMES])
+        self._held_R = np.array([self.robot_rest[t][1] for t in TARGET_NAMES])
+        #: whether the previous frame gave the target (velocities difference against _held_* then)
+        self._has_prev = [False] * n
+        self._eye_stack = np.tile(np.eye(3), (n, 1, 1))
+        self._use_rotation = [t in WRISTS or self.config.elbow_rotation for t in TARGET_NAMES]
+        #: low-pass filtered linear [m/s] and angular [rad/s] velocities, a row per target
+        self._vfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
+        self._wfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
         for ua in getattr(self, "upper_arm_maps", {}).values():
             ua.reset()
         for m in getattr(self, "_pos_map", {}).values():
@@ -276,6 +286,14 @@ class Retargeter(FrameIntake):
                     box_mode, calibration.rest[t], calibration.lower[t], calibration.upper[t],
                     ws.lower[t], ws.upper[t],
                 )  # fmt: skip
+        maps = [self._pos_map[t] for t in TARGET_NAMES]
+        #: the four absolute maps as one (4, 3) map (None in incremental mode: stateful per target)
+        self._box_map: AbsoluteMap | None = None
+        if all(isinstance(m, AbsoluteMap) for m in maps) and len({m.clamp for m in maps}) == 1:
+            stack = {
+                f: np.array([getattr(m, f) for m in maps]) for f in ("H_s", "U_s", "M_up", "M_down", "U_min", "U_max")
+            }
+            self._box_map = AbsoluteMap(**stack, clamp=maps[0].clamp)
         if self.config.orientation_reference == "rest":
             for t in TARGET_NAMES:
                 self._rot_map[t] = OrientationMap(quat_to_matrix(calibration.rest_q[t]), self.robot_rest[t][1])
@@ -387,10 +405,8 @@ class Retargeter(FrameIntake):
         if not self._rot_map:
             self._posture_maps(frame)
         self.counts["frames"] += 1
-        targets: dict[str, Target] = {}
         self._placed.clear()
-        for t in TARGET_NAMES:  # wrists first: the swivel elbows need them
-            targets[t] = self._target(t, frame, dt, targets)
+        targets = self._targets(frame, dt)
         upper_arms = {}
         for side, ua_map in self.upper_arm_maps.items():
             wrist = targets[f"{side}_wrist"]
@@ -488,30 +504,20 @@ class Retargeter(FrameIntake):
             self.counts[f"reach_clamped_{t}"] += 1
         return q
 
-    def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
-        use_rot = t in WRISTS or self.config.elbow_rotation
-        bone = frame.bones.get(self.bone_of[t])
-        if bone is None or not bone.valid:
-            self.counts[f"invalid_{t}"] += 1
-            self._prev[t] = None
-            self._vfilt[t].reset()
-            self._wfilt[t].reset()
-            pos_map = self._pos_map[t]
-            if isinstance(pos_map, IncrementalMap):
-                pos_map.reanchor()
-            p, R = self._held[t]
-            return Target(p.copy(), matrix_to_quat(R), np.zeros(3), np.zeros(3), valid=False, use_rotation=use_rot)
+    def _position(self, t: str, frame: HumanFrame, H: np.ndarray, mapped, done: dict[str, np.ndarray]) -> np.ndarray:
+        """Position (3,) [m] of valid target ``t`` whose bone is at ``H`` (3,) [m]; ``mapped`` is its box map's
+        ``(U, clamped)`` when computed with the others (None: map it here); ``done``: the wrists placed so far."""
         side = side_of(t)
         p = None
         if t in ELBOWS:
-            wrist = done.get(wrist_of(side))
-            placed = self._place_elbow(side, frame, wrist.p) if wrist is not None and wrist.valid else None
+            wrist_p = done.get(wrist_of(side))
+            placed = self._place_elbow(side, frame, wrist_p) if wrist_p is not None else None
             if placed is not None:
                 p = self._elbow_in_box(t, placed[0])
         if p is None and side in self.reach:
             p = self._reach_target(t, side, frame)
         if p is None:
-            p, clamped = self._pos_map[t](np.asarray(bone.p, dtype=float))
+            p, clamped = mapped if mapped is not None else self._pos_map[t](H)
             if clamped.any():
                 self.counts[f"clamped_{t}"] += 1
             if side in self.reach and t.endswith("wrist"):
@@ -523,24 +529,80 @@ class Retargeter(FrameIntake):
                 if np.any(np.abs(q - p) > 1e-9):
                     self.counts[f"reach_clamped_{t}"] += 1
                 p = q
-        rot_map = self._rot_map[t]
-        R = None
-        if isinstance(rot_map, ForearmOrientationMap):
-            placed = self._place_elbow(side, frame, p)
-            if placed is not None:
-                elbow, h_sh, h_el = placed
-                c = self.arms[side].centre
-                A = arm_alignment(h_el - h_sh, np.asarray(bone.p, dtype=float) - h_el, elbow - c, p - elbow)
-                R = rot_map.with_alignment(quat_to_matrix(bone.q), A)
-        if R is None:
-            R = rot_map(quat_to_matrix(bone.q))
-        prev = self._prev[t]
-        if prev is None or dt is None or dt <= 0:
-            v = self._vfilt[t].update(None, 1.0)
-            w = self._wfilt[t].update(None, 1.0)
-        else:
-            v = self._vfilt[t].update((p - prev[0]) / dt, dt)
-            w = self._wfilt[t].update(angular_velocity(prev[1], R, dt), dt)
-        self._prev[t] = (p, R)
-        self._held[t] = (p, R)
-        return Target(p, matrix_to_quat(R), v, w, valid=True, use_rotation=use_rot)
+        return p
+
+    def _targets(self, frame: HumanFrame, dt: float | None) -> dict[str, Target]:
+        """All targets of one frame (wrists first: the swivel elbows need them).
+
+        Positions go target by target (each mode places them its own way); the rest runs on all
+        four at once: the bone orientations, eq. (4), the velocity differences and their
+        low-pass, the quaternions. Same arithmetic as one target at a time (the bones are not
+        checked again: the frame's decoder did).
+        """
+        n = len(TARGET_NAMES)
+        bones: list[Bone | None] = [frame.bones.get(self.bone_of[t]) for t in TARGET_NAMES]
+        valid = [b is not None and b.valid for b in bones]
+        all_valid = all(valid)
+        H = np.zeros((n, 3))
+        Q = np.zeros((n, 4))
+        for i, b in enumerate(bones):
+            if valid[i]:
+                H[i] = b.p
+                Q[i] = b.q
+            else:
+                Q[i, 0] = 1.0
+        mapped = self._box_map(H) if self._box_map is not None else None
+        P = self._held_p.copy()  # invalid targets hold their last valid pose
+        left = self._eye_stack.copy()  # eq. (4) as left @ R_H @ right per target
+        right = self._eye_stack.copy()
+        done: dict[str, np.ndarray] = {}
+        for i, t in enumerate(TARGET_NAMES):
+            if not valid[i]:
+                self.counts[f"invalid_{t}"] += 1
+                pos_map = self._pos_map[t]
+                if isinstance(pos_map, IncrementalMap):
+                    pos_map.reanchor()
+                continue
+            P[i] = self._position(t, frame, H[i], None if mapped is None else (mapped[0][i], mapped[1][i]), done)
+            if t in WRISTS:
+                done[t] = P[i]
+            rot_map = self._rot_map[t]
+            right[i] = rot_map.R_HU
+            if isinstance(rot_map, ForearmOrientationMap):
+                side = side_of(t)
+                placed = self._place_elbow(side, frame, P[i])
+                if placed is not None:
+                    elbow, h_sh, h_el = placed
+                    c = self.arms[side].centre
+                    left[i] = arm_alignment(h_el - h_sh, H[i] - h_el, elbow - c, P[i] - elbow)
+                    right[i] = rot_map.right
+        R_H = np.empty((n, 3, 3))
+        for i in range(n):  # as quat_to_matrix
+            mujoco.mju_normalize4(Q[i])
+            mujoco.mju_quat2Mat(R_H[i].reshape(9), Q[i])
+        R = left @ R_H @ right
+        if not all_valid:
+            for i in range(n):
+                if not valid[i]:
+                    R[i] = self._held_R[i]
+        # Velocities: finite differences with the previous frame, low-passed; a target without a previous
+        # sample restarts from zero.
+        fresh = [v and h for v, h in zip(valid, self._has_prev, strict=True)]
+        raw_v = raw_w = None
+        if dt is not None and dt > 0 and any(fresh):
+            rows = slice(None) if all(fresh) else np.flatnonzero(fresh)
+            raw_v = (P[rows] - self._held_p[rows]) / dt
+            raw_w = np.array([angular_velocity(R0, R1, dt) for R0, R1 in zip(self._held_R[rows], R[rows], strict=True)])
+        V = self._vfilt.update_rows(raw_v, dt, fresh)
+        W = self._wfilt.update_rows(raw_w, dt, fresh)
+        self._has_prev = valid
+        self._held_p = P
+        self._held_R = R
+        q = np.empty((n, 4))
+        out = {}
+        for i, t in enumerate(TARGET_NAMES):
+            mujoco.mju_mat2Quat(q[i], R[i].reshape(9))  # as matrix_to_quat
+            if q[i, 0] < 0.0:
+                q[i] *= -1.0
+            out[t] = Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=self._use_rotation[i])
+        return out

@@ -21,16 +21,17 @@ class LowPassVelocity:
             differencing across a dropout.
     """
 
-    def __init__(self, tau: float = 0.05, max_gap: float = 0.5):
+    def __init__(self, tau: float = 0.05, max_gap: float = 0.5, rows: int | None = None):
         if tau < 0 or max_gap <= 0:
             raise ValueError(f"velocity filter needs tau >= 0 and max_gap > 0, got {tau}, {max_gap}")
         self.tau = float(tau)
         self.max_gap = float(max_gap)
-        self.v = np.zeros(3)
+        #: the filtered rate: (3,), or (rows, 3) for ``rows`` signals filtered together
+        self.v = np.zeros(3 if rows is None else (rows, 3))
 
     def reset(self) -> None:
         """Forget the history: velocity back to zero."""
-        self.v = np.zeros(3)
+        self.v = np.zeros_like(self.v)
 
     def update(self, raw_rate: np.ndarray | None, dt: float) -> np.ndarray:
         """Feed one raw rate and return the filtered one, (3,).
@@ -45,4 +46,21 @@ class LowPassVelocity:
             return self.v.copy()
         a = dt / (self.tau + dt)
         self.v = self.v + a * (np.asarray(raw_rate, dtype=float) - self.v)
+        return self.v.copy()
+
+    def update_rows(self, raw_rate: np.ndarray | None, dt: float | None, fresh: list[bool]) -> np.ndarray:
+        """Several signals at once (a filter made with ``rows``): feed the rows where ``fresh`` (rows bools) their
+        raw rates ``raw_rate`` (sum(fresh), 3); every other row restarts from zero (no previous sample), and so
+        do all of them when dt [s] is None, <= 0 or above ``max_gap``. Returns the filtered (rows, 3)."""
+        if dt is None or not 0 < dt <= self.max_gap or raw_rate is None:
+            self.reset()
+            return self.v.copy()
+        a = dt / (self.tau + dt)
+        if all(fresh):
+            self.v = self.v + a * (np.asarray(raw_rate, dtype=float) - self.v)
+            return self.v.copy()
+        rows = np.flatnonzero(fresh)
+        old = self.v[rows]
+        self.v[:] = 0.0
+        self.v[rows] = old + a * (np.asarray(raw_rate, dtype=float) - old)
         return self.v.copy()

@@ -31,6 +31,9 @@ from shared.messages import JointCommand, MessageError, parse_query
 
 #: Longest wall-clock backlog the real-time clock catches up on before it skips [s].
 MAX_CATCHUP = 0.05
+#: Longest the real-time loop sleeps while the watchdog holds and no state or status is due [s]: the
+#: physics it then steps in one batch stays well inside MAX_CATCHUP.
+MAX_IDLE_WAIT = 0.01
 #: How often the joint positions are written for a restart [s].
 STATE_SAVE_PERIOD = 0.25
 #: Shortest interval between two "velocity past its limit" warnings [s].
@@ -204,42 +207,62 @@ class SimNode:
                 self._velocity_excess_said, self._velocity_said_at = c.velocity_excess_steps, now
 
     def run_realtime(self, stop: threading.Event, duration: float | None = None) -> None:
-        """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time)."""
+        """Pace physics to the wall clock until ``stop`` (or ``duration`` [s] of sim time).
+
+        While commands come, the loop waits on the command mailbox for one physics step at a time,
+        so a command is applied (and its state published) with at most a step to catch up first.
+        While the watchdog holds (no command for ``watchdog`` s, or none yet) nothing is in a hurry:
+        the loop sleeps until the next periodic state or status, or a command, at most
+        MAX_IDLE_WAIT, and then steps the physics in one batch (the same 1 ms steps, each with its
+        servo update and checks). Waking for every step cost ~0.2 core with no command at all.
+        """
         core = self.core
         dt = core.dt
-        wall0 = time.monotonic()
-        sim0 = core.time
-        next_pub = core.time
-        next_status = wall0
+        self._wall0 = time.monotonic()
+        self._sim0 = core.time
+        self._next_pub = core.time
+        next_status = self._wall0
         while not stop.is_set():
-            behind = (time.monotonic() - wall0) - (core.time - sim0)
-            if behind > MAX_CATCHUP:
-                # Too far behind (slow machine, rendering): drop the backlog rather than spiral.
-                self.overruns += 1
-                wall0 += behind - dt
-                behind = dt
-            n = int(behind / dt)
-            for _ in range(n):
-                core.step_physics(1)
-                if core.time + 1e-9 >= next_pub:
-                    self._publish()
-                    next_pub += self.state_period
-                    if next_pub < core.time:
-                        next_pub = core.time + self.state_period
-                self._render()
+            self._catch_up(dt)
             now = time.monotonic()
             if now >= next_status:
                 self.update_status()
                 next_status = now + 0.1
                 self.keep_state(now)
-            if duration is not None and core.time - sim0 >= duration:
+            if duration is not None and core.time - self._sim0 >= duration:
                 break
-            # Wait for the next physics step on the command mailbox, not in a sleep: a command is
-            # applied (and, with state_on_command, its state published) as soon as it arrives.
-            sleep = dt - ((now - wall0) - (core.time - sim0))
-            if self._apply(self.commands.take(timeout=sleep if sleep > 0 else None)) and self.state_on_command:
+            # Wait on the mailbox, not in a sleep: a command is applied (and, with state_on_command,
+            # its state published) as soon as it arrives.
+            if core.holding:
+                state_due = self._wall0 + (self._next_pub - self._sim0) + 0.1 * dt
+                wait = min(state_due, next_status, now + MAX_IDLE_WAIT) - now
+            else:  # until the next physics step is due
+                wait = dt - ((now - self._wall0) - (core.time - self._sim0))
+            cmd = self.commands.take(timeout=wait if wait > 0 else None)
+            if cmd is None:
+                continue
+            self._catch_up(dt)  # the command applies at the simulated time it arrived (within a step)
+            if self._apply(cmd) and self.state_on_command:
                 self._publish()
-                next_pub = core.time + STATE_IDLE_PERIODS * self.state_period
+                self._next_pub = core.time + STATE_IDLE_PERIODS * self.state_period
+
+    def _catch_up(self, dt: float) -> None:
+        """Step the physics up to the wall clock, publishing the periodic states that fall due."""
+        core = self.core
+        behind = (time.monotonic() - self._wall0) - (core.time - self._sim0)
+        if behind > MAX_CATCHUP:
+            # Too far behind (slow machine, rendering): drop the backlog rather than spiral.
+            self.overruns += 1
+            self._wall0 += behind - dt
+            behind = dt
+        for _ in range(int(behind / dt)):
+            core.step_physics(1)
+            if core.time + 1e-9 >= self._next_pub:
+                self._publish()
+                self._next_pub += self.state_period
+                if self._next_pub < core.time:
+                    self._next_pub = core.time + self.state_period
+            self._render()
 
     def run_lockstep(self, stop: threading.Event) -> None:
         """Advance ``lockstep_dt`` per command, as fast as commands come, until ``stop``."""

@@ -15,13 +15,16 @@ from shared.rotations import matrix_to_quat
 from shared.targets import SIDES
 
 
-def random_weights(rng: np.random.Generator, hidden: int = 16, scale: float = 0.3) -> dict[str, np.ndarray]:
-    """Encoder 14-h-h-3 and decoder 17-h-h-6 per side, small random weights."""
+def random_weights(
+    rng: np.random.Generator, hidden: int = 16, scale: float = 0.3, decoder: tuple[int, ...] | None = None
+) -> dict[str, np.ndarray]:
+    """Encoder 14-h-h-3 and decoder 17-(decoder, default h-h)-6 per side, small random weights."""
     out = {}
+    dec_hidden = (hidden, hidden) if decoder is None else decoder
     for side in SIDES:
         for net, dims in (
             ("enc", (STATE_DIM, hidden, hidden, 3)),
-            ("dec", (DECODER_DIM, hidden, hidden, ARM_STATE_DIM)),
+            ("dec", (DECODER_DIM, *dec_hidden, ARM_STATE_DIM)),
         ):
             for k, (a, b) in enumerate(itertools.pairwise(dims)):
                 out[f"{side}.{net}.W{k}"] = rng.normal(scale=scale, size=(a, b))
@@ -54,6 +57,7 @@ def write_random_policy(
     elbow: dict[str, np.ndarray] | None = None,
     hidden: int = 16,
     scale: float = 0.3,
+    decoder: tuple[int, ...] | None = None,
 ) -> Path:
     """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0).
 
@@ -62,9 +66,10 @@ def write_random_policy(
         elbow: when given (side -> (3,) [m]), an elbow-kind policy whose encoder outputs that point for
             every state (output layer zero, bias the point); the decoder stays random.
         hidden, scale: hidden units and weight scale of the random layers.
+        decoder: the decoder's hidden widths (default: two of ``hidden``).
     """
     meta = policy_meta(robot, threshold)
-    weights = random_weights(np.random.default_rng(seed), hidden=hidden, scale=scale)
+    weights = random_weights(np.random.default_rng(seed), hidden=hidden, scale=scale, decoder=decoder)
     if posture_gain is not None:
         meta.update(action_kind="posture", posture_gain=posture_gain)
     if elbow is not None:

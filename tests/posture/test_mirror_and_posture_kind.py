@@ -85,7 +85,7 @@ def test_posture_kind_turns_the_shoulder_posture_into_a_bounded_pull(tmp_path, r
         hand[f"{side}.enc.W0"][7:] = 0.0
     pol = PosturePolicy.load(save_policy(tmp_path / "hand.npz", hand, meta))
     S = rng.normal(scale=0.5, size=(2, 14))
-    a = pol.act(S).action.copy()  # (act's outputs are its buffers)
+    a = pol.act(S).action.astype(float)  # (act's outputs are its float32 buffers)
     S[:, 7:10] = a
     np.testing.assert_allclose(pol.act(S).qd0, 0.0, atol=1e-12)
     S[:, 7:10] = a - 0.05

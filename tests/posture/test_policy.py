@@ -36,13 +36,16 @@ def test_round_trip_and_fast_path_equals_each_arms_network(tmp_path, robot14):
             assert out.gate[i] == (gap <= 0.05)
 
 
+@pytest.mark.parametrize("decoder", [(128, 128), (32,)], ids=["dec128x2", "dec32x1"])
 @pytest.mark.parametrize("kind", ["velocity", "posture", "elbow"])
-def test_fast_path_equals_the_reference_forward_pass(tmp_path, robot14, kind):
+def test_fast_path_equals_the_reference_forward_pass(tmp_path, robot14, kind, decoder):
     """act (float32, batched, folded) against act_reference (float64, per arm), on networks of the trained
-    size and weight magnitude (0.1 ~ 1/sqrt(128): the trained files' layers are of that order)."""
+    sizes (the shipped decoder has one hidden layer of 32) and weight magnitude (0.1 ~ 1/sqrt(128): the
+    trained files' layers are of that order)."""
     gain = 20.0
     extra = {"posture": {"posture_gain": gain}, "elbow": {"elbow": {s: [0.1, 0.2, 0.0] for s in SIDES}}}
-    path = write_random_policy(tmp_path / "p.npz", robot14, threshold=0.3, hidden=128, scale=0.1, **extra.get(kind, {}))
+    path = write_random_policy(tmp_path / "p.npz", robot14, threshold=0.3, hidden=128, scale=0.1, decoder=decoder,
+                               **extra.get(kind, {}))  # fmt: skip
     pol = PosturePolicy.load(path)
     assert pol.kind == kind
     rng = np.random.default_rng(2)

@@ -111,6 +111,9 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     assert meta["state_layout"][:7] == ["Qw", "Qx", "Qy", "Qz", "px", "py", "pz"] and len(meta["state_layout"]) == 14
     assert meta["robot"] == "g1_29dof" and len(meta["sha256"]) == 64
     assert meta["action_kind"] == "elbow" and meta["action_layout"] == ["elbow_x", "elbow_y", "elbow_z"]  # default
+    # default decoder: one hidden layer of 32 (it only feeds the gate); the encoder keeps --hidden
+    assert meta["network"]["decoder"] == [17, 32, 6] and meta["network"]["encoder"] == [14, 8, 8, 3]
+    assert [W.shape for W, _ in pol._dec64[0]] == [(17, 32), (32, 6)]
     report = json.loads(rep.read_text())
     assert [r["round"] for r in report["relabel"]] == [0, 1]
     assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time

@@ -156,3 +156,32 @@ def test_lockstep_over_zenoh_advances_once_per_command_in_order(zenoh_endpoint):
         hub.close()
     assert [s.hdr.seq for s in states] == list(range(n))
     assert [round(s.sim_time, 6) for s in states] == [round(0.01 * (k + 1), 6) for k in range(n)]
+
+
+def test_realtime_loop_wakes_for_states_and_commands_not_for_every_physics_step(zenoh_endpoint):
+    """Real time without commands: physics keeps the wall clock and the states come at --state-rate, but the
+    loop sleeps until a state is due (the 1 ms steps run in batches) instead of waking for every step."""
+    hub = open_session(bus_args(mode="router", listen=[zenoh_endpoint], connect=[]))
+    try:
+        args = bus_args(connect=[zenoh_endpoint], session=SESSION + "wake", status_period=0.5)
+        with ServiceRunner("sim", args, install_signals=False) as svc:
+            core = SimCore()
+            node = SimNode(core, svc, state_rate=100.0)
+            take = node.commands.take
+            calls = []
+            node.commands.take = lambda timeout=None: calls.append(timeout) or take(timeout)
+            published = []
+            publish = node._publish
+            node._publish = lambda: published.append(core.time) or publish()
+            wall = time.monotonic()
+            node.run_realtime(threading.Event(), duration=1.0)
+            wall = time.monotonic() - wall
+        steps = round(core.time / core.dt)
+        assert steps >= 1000 and wall >= 0.99  # paced: 1 s of simulated time took 1 s
+        assert abs(len(published) - (round(core.time / 0.01) + 1)) <= 1  # 100 Hz of simulated time (from t = 0)
+        # One sleep per state period (and the 0.1 s status), not one per 1 ms physics step (the former loop's ~950);
+        # a loop that comes back late only looks at the mailbox without sleeping (timeout None).
+        sleeps = [t for t in calls if t is not None]
+        assert len(sleeps) < 300, len(sleeps)
+    finally:
+        hub.close()
