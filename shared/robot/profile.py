@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -266,9 +267,12 @@ def _validate(prof: RobotProfile, path: Path) -> None:
     unknown = sorted(set(prof.arms_out) - set(joints))
     if unknown:
         raise ProfileError(f"{path}: [arms_out] names joints that are not controlled: {unknown}")
-    unknown = sorted(set(prof.joint_accelerations) - set(joints))
+    # Entries for joints the profile does not control are allowed (a variant that drops the waist keeps
+    # the table), but each must be a joint of the URDF: a typo must not silently leave a joint uncapped.
+    urdf_joints = set(re.findall(r'<joint\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
+    unknown = sorted(set(prof.joint_accelerations) - urdf_joints)
     if unknown:
-        raise ProfileError(f"{path}: [acceleration_limits] names joints that are not controlled: {unknown}")
+        raise ProfileError(f"{path}: [acceleration_limits] names joints that are not in the URDF: {unknown}")
     for joint, a in prof.joint_accelerations.items():
         if not (math.isfinite(a) and a > 0.0):
             raise ProfileError(f"{path}: [acceleration_limits] {joint} must be a positive number, got {a}")

@@ -74,8 +74,8 @@ def test_amax_beside_vmax():
             "motor_acceleration_limits = true needs an \\[acceleration_limits\\] table",
         ),
         (
-            lambda t: t.replace("[acceleration_limits]\n", "[acceleration_limits]\nleft_knee_joint = 10.0\n"),
-            r"\[acceleration_limits\] names joints that are not controlled: \['left_knee_joint'\]",
+            lambda t: t.replace("[acceleration_limits]\n", "[acceleration_limits]\nleft_kneee_joint = 10.0\n"),
+            r"\[acceleration_limits\] names joints that are not in the URDF: \['left_kneee_joint'\]",
         ),
     ],
 )
