@@ -28,7 +28,7 @@ It only prints; nothing is written at run time. The solver, its smoother and the
 use the table only when the profile sets ``[model] motor_acceleration_limits = true``
 (``RobotProfile.joint_acceleration``). The G1 ships with it off: measured on 4 real clips
 (``mimic eval --algos hqp-nullspace``, with and without the sim) the motor limits make the commands
-feasible (the sim's steps past 1.01 vmax fall 35-59 %, run_happy's worst |qd| 2.97 -> 1.42 vmax with
+feasible (the sim's steps past 1.01 vmax fall 34-61 %, run_happy's worst |qd| 2.97 -> 1.42 vmax with
 no reserve), but the strict velocity-level HQP reaches the wrist targets with the fast distal joints
 (up to 260x the waist's limit) and ends in another arm posture the elbow level cannot undo: elbow
 errors 0.4-0.8 -> 2-18 cm on gesture clips. Both ``reserve`` 0.5 and 0 were measured; both lose.
