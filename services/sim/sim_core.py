@@ -18,7 +18,8 @@ every torque:
   a staircase at the command rate;
 * **velocity and acceleration limits**: the servo target ``q_servo`` is not the reference
   itself but follows it as a joint would: ``|qd_servo| <= vmax``, ``|qdd_servo| <= a_max``
-  (the profile's ``max_joint_acceleration``), braking before the position limits and
+  (the robot model's per-joint ``amax``: the profile's ``max_joint_acceleration``, or each motor's
+  ``[acceleration_limits]`` entry when ``motor_acceleration_limits`` is on), braking before the position limits and
   before the reference (:class:`~services.solver.bounds.JointBounds`, the solver's own
   bounds), so a watchdog resume, the very first command or a jump in the commands ramp
   up and settle instead of stepping the servo at full speed. The velocity feedforward
@@ -73,7 +74,7 @@ class SimConfig:
         max_extrapolation: longest first-order hold past a command [s]; then the reference
             brakes to a stop at ``max_acceleration``.
         max_acceleration: acceleration cap of the servo target [rad/s^2] (None: the robot
-            profile's ``max_joint_acceleration``, the limit the solver's commands keep).
+            model's per-joint ``amax``, the limits the solver's commands keep).
         velocity_capped_servo: the velocity the servo drives a joint towards is capped at vmax
             (a drive's position loop saturating at its speed limit): a lagging joint catches up at
             vmax instead of past it.

@@ -21,7 +21,8 @@ class RobotModel:
         joint_names: (n,) controlled joints, solver order (``model`` order).
         lower, upper: (n,) position limits [rad], shrunk by the profile margin.
         vmax: (n,) velocity limits [rad/s] (URDF value capped by the profile).
-        amax: (n,) acceleration limits [rad/s^2] (the profile's ``max_joint_acceleration``).
+        amax: (n,) acceleration limits [rad/s^2] (``RobotProfile.joint_acceleration``: the global
+            ``max_joint_acceleration``, or per joint the ``[acceleration_limits]`` capped by it).
         q_rest: (n,) rest pose [rad].
         frame_ids: target name -> Pinocchio frame id.
     """
@@ -105,7 +106,7 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
     lower = reduced.lowerPositionLimit[idx] + prof.limit_margin
     upper = reduced.upperPositionLimit[idx] - prof.limit_margin
     vmax = np.minimum(reduced.velocityLimit[idx], prof.max_joint_velocity)
-    amax = np.full(len(names), prof.max_joint_acceleration)
+    amax = np.array([prof.joint_acceleration(j) for j in names])
     q_rest = np.clip(np.array([prof.rest.get(j, 0.0) for j in names]), lower, upper)
     frame_ids = {}
     for target, frame in prof.frames.items():

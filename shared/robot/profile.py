@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -78,6 +79,11 @@ class RobotProfile:
         rest: joint name -> rest angle [rad] (unlisted joints rest at 0).
         max_joint_velocity: cap on every joint speed [rad/s].
         max_joint_acceleration: cap on every joint acceleration [rad/s^2].
+        joint_accelerations: joint -> acceleration limit [rad/s^2] its motor can deliver (the
+            profile's ``[acceleration_limits]``, derived by ``python -m shared.robot.accel_limits``).
+        motor_acceleration_limits: ``[model] motor_acceleration_limits``: when true, a joint's
+            limit is the smaller of its ``joint_accelerations`` entry and ``max_joint_acceleration``;
+            when false the table is data only and every joint has the global cap.
         limit_margin: shrink of each position limit [rad].
         actuators: MuJoCo servo parameters (kp, kv, armature).
         arms_out: joint -> offset [rad] from rest holding the arms clear of the body (centre
@@ -100,6 +106,8 @@ class RobotProfile:
     limit_margin: float
     actuators: dict[str, float] = field(default_factory=dict)
     arms_out: dict[str, float] = field(default_factory=dict)
+    joint_accelerations: dict[str, float] = field(default_factory=dict)
+    motor_acceleration_limits: bool = False
     source: Path | None = None
     collision: CollisionSpec | None = None
 
@@ -109,6 +117,14 @@ class RobotProfile:
         (17,) with the waist, (14,) without on the G1.
         """
         return (self.waist if with_waist else ()) + tuple(j for s in SIDES for j in self.arms[s].joints)
+
+    def joint_acceleration(self, joint: str) -> float:
+        """Acceleration limit of ``joint`` [rad/s^2]: with ``motor_acceleration_limits``, its
+        ``[acceleration_limits]`` entry capped by ``max_joint_acceleration``; otherwise (or for a joint
+        without an entry) the global cap alone."""
+        if not self.motor_acceleration_limits:
+            return self.max_joint_acceleration
+        return min(self.joint_accelerations.get(joint, math.inf), self.max_joint_acceleration)
 
     def mesh_uri_to_path(self, uri: str) -> Path:
         """Resolve a ``package://`` mesh URI to a file on disk."""
@@ -168,6 +184,11 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
             limit_margin=_number(model, "limit_margin", "[model]", 0.0),
             actuators={k: float(v) for k, v in raw.get("actuators", {}).items()},
             arms_out={k: float(v) for k, v in raw.get("arms_out", {}).items()},
+            joint_accelerations={
+                k: _number(raw["acceleration_limits"], k, "[acceleration_limits]")
+                for k in raw.get("acceleration_limits", {})
+            },
+            motor_acceleration_limits=_flag(model, "motor_acceleration_limits", "[model]"),
             source=path,
             collision=_collision(raw["collision"], path) if "collision" in raw else None,
         )
@@ -185,6 +206,14 @@ def _number(table: dict, key: str, where: str, default: float | None = None) -> 
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"{where} {key} must be a number, got {value!r}")
     return float(value)
+
+
+def _flag(table: dict, key: str, where: str) -> bool:
+    """``table[key]`` as a bool (false when missing); raises ValueError naming it when not a bool."""
+    value = table.get(key, False)
+    if not isinstance(value, bool):
+        raise ValueError(f"{where} {key} must be true or false, got {value!r}")
+    return value
 
 
 def _arm(raw: dict, where: str, path: Path) -> ArmJoints:
@@ -238,6 +267,17 @@ def _validate(prof: RobotProfile, path: Path) -> None:
     unknown = sorted(set(prof.arms_out) - set(joints))
     if unknown:
         raise ProfileError(f"{path}: [arms_out] names joints that are not controlled: {unknown}")
+    # Entries for joints the profile does not control are allowed (a variant that drops the waist keeps
+    # the table), but each must be a joint of the URDF: a typo must not silently leave a joint uncapped.
+    urdf_joints = set(re.findall(r'<joint\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
+    unknown = sorted(set(prof.joint_accelerations) - urdf_joints)
+    if unknown:
+        raise ProfileError(f"{path}: [acceleration_limits] names joints that are not in the URDF: {unknown}")
+    for joint, a in prof.joint_accelerations.items():
+        if not (math.isfinite(a) and a > 0.0):
+            raise ProfileError(f"{path}: [acceleration_limits] {joint} must be a positive number, got {a}")
+    if prof.motor_acceleration_limits and not prof.joint_accelerations:
+        raise ProfileError(f"{path}: [model] motor_acceleration_limits = true needs an [acceleration_limits] table")
 
 
 def upper_arm_frame(profile: RobotProfile, side: str) -> str:

@@ -34,7 +34,8 @@ def test_g1_profile_roles():
 def test_amax_beside_vmax():
     rm = build_robot_model()
     assert rm.amax.shape == rm.vmax.shape == (rm.nq,)
-    assert np.all(rm.amax == rm.profile.max_joint_acceleration)
+    assert np.all(rm.amax == [rm.profile.joint_acceleration(j) for j in rm.joint_names])
+    assert np.all(rm.amax <= rm.profile.max_joint_acceleration)
 
 
 @pytest.mark.parametrize(
@@ -54,9 +55,32 @@ def test_amax_beside_vmax():
         ),
         (lambda t: t.replace("max_joint_velocity = 4.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
         (lambda t: t.replace("left_shoulder_pitch_joint = -0.3", "left_knee_joint = -0.3"), "arms_out"),
+        (
+            lambda t: re.sub(r"^waist_pitch_joint = .*$", "waist_pitch_joint = 0.0", t, flags=re.M),
+            r"\[acceleration_limits\] waist_pitch_joint must be a positive number",
+        ),
+        (
+            lambda t: re.sub(r"^waist_pitch_joint = .*$", 'waist_pitch_joint = "slow"', t, flags=re.M),
+            r"\[acceleration_limits\] waist_pitch_joint must be a number",
+        ),
+        (
+            lambda t: t.replace("motor_acceleration_limits = false", 'motor_acceleration_limits = "yes"'),
+            r"\[model\] motor_acceleration_limits must be true or false",
+        ),
+        (
+            lambda t: t.replace("motor_acceleration_limits = false", "motor_acceleration_limits = true").replace(
+                "[acceleration_limits]", "[unused_acceleration_limits]"
+            ),
+            "motor_acceleration_limits = true needs an \\[acceleration_limits\\] table",
+        ),
+        (
+            lambda t: t.replace("[acceleration_limits]\n", "[acceleration_limits]\nleft_kneee_joint = 10.0\n"),
+            r"\[acceleration_limits\] names joints that are not in the URDF: \['left_kneee_joint'\]",
+        ),
     ],
 )
 def test_bad_profiles_are_refused_with_the_field(tmp_path, edit, message):
     path = _variant(tmp_path, "bad", edit)
-    with pytest.raises(ProfileError, match=message):
+    with pytest.raises(ProfileError, match=message) as err:
         load_profile(path)
+    assert "\n" not in str(err.value)  # a one-line error

@@ -14,13 +14,19 @@ from test_core import targets_from_q
 from services.solver.core import MIN_STEP, SolverConfig, SolverCore
 from services.solver.node import TickClock
 from shared.robot.pinocchio_model import build_robot_model
+from tests.support.profiles import g1_with_motor_acceleration_limits
 
 TOL = 1e-9
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return build_robot_model()
+@pytest.fixture(scope="module", params=["global", "motor"])
+def robot(request, tmp_path_factory):
+    """The shipped G1 (one global a_max) and the G1 with its per-joint motor limits (3.2-830 rad/s^2)."""
+    if request.param == "global":
+        return build_robot_model()
+    robot = build_robot_model(g1_with_motor_acceleration_limits(tmp_path_factory.mktemp("profile")))
+    assert np.ptp(robot.amax) > 100.0  # the per-joint limits differ: each joint is judged by its own
+    return robot
 
 
 class WallClockCheck:
@@ -31,6 +37,7 @@ class WallClockCheck:
         self.prev = None
         self.v_ratio = 0.0  # max |dq/dt| / vmax
         self.a_ratio = 0.0  # max |d(qd)/dt| / amax
+        self.a_joint = np.zeros(robot.nq)  # per joint: max |d(qd)/dt| / its amax
         self.qd_ratio = 0.0  # max |qd| / vmax
         self.pos_excess = 0.0
 
@@ -41,7 +48,8 @@ class WallClockCheck:
         if self.prev is not None:
             dt = cmd.t_cmd - self.prev.t_cmd
             self.v_ratio = max(self.v_ratio, float(np.max(np.abs(cmd.q - self.prev.q) / (r.vmax * dt))))
-            self.a_ratio = max(self.a_ratio, float(np.max(np.abs(cmd.qd - self.prev.qd) / (r.amax * dt))))
+            np.maximum(self.a_joint, np.abs(cmd.qd - self.prev.qd) / (r.amax * dt), out=self.a_joint)
+            self.a_ratio = float(np.max(self.a_joint))
         self.prev = cmd
 
     def assert_safe(self, what: str) -> None:
@@ -73,6 +81,8 @@ def test_event_ticks_at_1khz_keep_vmax_and_amax_over_wall_clock_time(robot, algo
         fastest = max(fastest, float(np.max(np.abs(cmd.qd) / robot.vmax)))
     check.assert_safe(f"{algo} event 1 kHz")
     assert fastest > 0.8  # the jumps drove joints near their top speed: the limits were tested
+    # ... and the joint with the lowest a_max used most of it (its own limit bound it, not another's).
+    assert check.a_joint[np.argmin(robot.amax)] > 0.5
     assert core.counts["safety_clamps"] == 0
 
 
