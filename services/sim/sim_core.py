@@ -356,6 +356,26 @@ class SimCore(FollowerCore):
         qd[clipped != q] = 0.0
         return clipped, qd
 
+    def settled(self) -> bool:
+        """Holding, with the servo target at rest exactly on the held pose."""
+        return self.holding and not self.qd_servo.any() and np.array_equal(self.q_servo, self._hold_q)
+
+    def _advance_target(self, t: float, dt: float) -> np.ndarray:
+        """Move the servo target one step dt [s] from time t [s] towards the reference; its velocity (n,) [rad/s].
+
+        It moves with the reference, plus closing the gap to it no faster than braking (part of a_max) can stop at
+        it; then within vmax, a_max and braking before the limits (JointBounds: the solver's own box).
+        """
+        ref, ref_qd = self._reference(t + dt)
+        gap = ref - ref_qd * dt - self.q_servo  # what is left if the target moves with the reference
+        b = self._servo_bounds
+        want = ref_qd + np.sign(gap) * b.brake(np.abs(gap), dt, decel=CLOSING_DECEL)
+        lb, ub = b.compute(self.q_servo, self.qd_servo, dt)
+        v = np.minimum(np.maximum(want, lb), ub)
+        self.qd_servo = v
+        self.q_servo = self.q_servo + v * dt
+        return v
+
     def _servo_step(self) -> None:
         d = self.robot.data
         dt = self.dt
@@ -368,19 +388,13 @@ class SimCore(FollowerCore):
             self._hold_q = np.clip(self.q_servo + v * np.abs(v) / (2.0 * self.amax), self.lower, self.upper)
             self.counters.holds += 1
             log.info("watchdog: no command for %.0f ms, holding (t=%.3f s)", 1e3 * (t - self._last_cmd_time), t)
-        ref, ref_qd = self._reference(t + dt)
-        # Move with the reference, plus closing the gap to it no faster than braking (part of a_max) can stop
-        # at it; then within vmax, a_max and braking before the limits (JointBounds: the solver's own box).
-        gap = ref - ref_qd * dt - self.q_servo  # what is left if the target moves with the reference
-        b = self._servo_bounds
-        want = ref_qd + np.sign(gap) * b.brake(np.abs(gap), dt, decel=CLOSING_DECEL)
-        lb, ub = b.compute(self.q_servo, self.qd_servo, dt)
-        v = np.minimum(np.maximum(want, lb), ub)
-        self.qd_servo = v
-        self.q_servo = self.q_servo + v * dt
-        ctrl = self.q_servo
-        if cfg.velocity_feedforward:
-            ctrl = ctrl + self._ff_gain * v
+        if self.settled():
+            # The target step would give v = 0 here (the braking lands on the held pose exactly): skipping it keeps
+            # an idle sim cheap, since the 1 kHz loop runs with no commands too.
+            ctrl = self.q_servo
+        else:
+            v = self._advance_target(t, dt)
+            ctrl = self.q_servo + self._ff_gain * v if cfg.velocity_feedforward else self.q_servo
         if cfg.velocity_capped_servo:
             # The actuator force kp (ctrl - q) - kv qdot = kv (u - qdot) drives the joint towards the velocity
             # u = (ctrl - q) kp / kv: cap u at vmax (a drive's position loop saturating at its speed limit).

@@ -290,3 +290,28 @@ def test_commands_stopping_at_full_speed_brake_at_amax_then_hold():
     assert watch.target_a <= 1 + 1e-6 and watch.target_v <= 1 + 1e-9
     assert watch.joint <= VELOCITY_TOLERANCE
     assert abs(core.q[i] - core.q_servo[i]) < np.deg2rad(0.5)
+
+
+def test_the_settled_hold_shortcut_gives_the_same_physics_as_the_full_target_step():
+    """An idle sim skips the servo target's step once it rests on the held pose; the physics must not notice."""
+    runs = []
+    for shortcut in (True, False):
+        core = SimCore(config=SimConfig(watchdog=0.05))
+        if not shortcut:
+            core.settled = lambda: False  # always the full target step
+        q0 = core.q.copy()
+        i = core.joint_names.index("right_elbow_joint")
+        far = q0.copy()
+        far[i] -= 0.3
+        settled_steps = 0
+        for k in range(20):  # 0.2 s of commands at 100 Hz, then a watchdog hold while still moving
+            assert core.apply(_cmd(core, far, seq=k))
+            core.step_physics(10)
+        for _ in range(600):
+            settled_steps += SimCore.settled(core)
+            core.step_physics(1)
+        assert core.holding
+        runs.append((core.robot.data.qpos.copy(), core.robot.data.qvel.copy(), core.q_servo.copy(), settled_steps))
+    (qp_a, qv_a, qs_a, n_a), (qp_b, qv_b, qs_b, n_b) = runs
+    assert n_a > 100 and n_b == n_a  # the hold did settle, and the shortcut was taken
+    assert np.array_equal(qp_a, qp_b) and np.array_equal(qv_a, qv_b) and np.array_equal(qs_a, qs_b)
