@@ -28,6 +28,8 @@ log = logging.getLogger("mimic.posture")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from services.posture.train import TrainConfig  # numpy only (torch is imported when training)
+
     sub = parser.add_subparsers(dest="posture_command", metavar="ACTION", required=True)
     t = sub.add_parser("train", help="train the policy (BC + online relabelling) on clips; needs mimic[train]")
     t.add_argument("clips", nargs="+", help="BVH/C3D clips (split by clip into train and held-out test)")
@@ -45,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--epochs", type=int, default=80, help="training epochs per fit (chosen on validation clips)")
     t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
+    t.add_argument("--gate-factor", type=float, default=TrainConfig.gate_factor,
+                   help="gate threshold per arm = this x the 99th percentile of the training gaps |x_dv - p| "
+                   "(chosen on validation clips, see TrainConfig)")  # fmt: skip
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
@@ -74,8 +79,13 @@ def split_clips(clips: list[str], every: int) -> tuple[list[str], list[str]]:
     return [p for p in paths if p not in test], test
 
 
-def gate_thresholds(weights: dict, meta: dict, data) -> dict:
-    """Per side: 2x the 99th percentile of |x_dv - p| over the training states (at least 3 cm)."""
+def gate_thresholds(weights: dict, meta: dict, data, factor: float, floor: float | None = None) -> dict:
+    """Per side: ``factor`` times the 99th percentile of |x_dv - p| [m] over the states ``data.S``
+    (the training states), at least ``floor`` [m] (default :data:`GATE_MIN`).
+
+    Returns ``{"gate_threshold": {side: m}, "gate_stats": {side: {gap_p50_m, gap_p99_m, factor, threshold_m}}}``.
+    """
+    floor = GATE_MIN if floor is None else floor
     from services.posture.features import decoder_input
     from services.posture.policy import _layers, mlp
 
@@ -90,14 +100,12 @@ def gate_thresholds(weights: dict, meta: dict, data) -> dict:
         arm = ArmFrame(np.asarray(meta["arms"][s]["centre"]), meta["arms"][s]["upper"], meta["arms"][s]["fore"])
         gap = np.linalg.norm(virtual_target(arm, z) - S[:, 4:7], axis=1)
         p99 = float(np.percentile(gap, 99))
-        out[s] = max(GATE_FACTOR * p99, GATE_MIN)
-        stats[s] = {"gap_p50_m": float(np.median(gap)), "gap_p99_m": p99, "threshold_m": out[s]}
+        out[s] = max(factor * p99, floor)
+        stats[s] = {"gap_p50_m": float(np.median(gap)), "gap_p99_m": p99, "factor": factor, "threshold_m": out[s]}
     return {"gate_threshold": out, "gate_stats": stats}
 
 
-#: Gate threshold: this factor times the 99th percentile of the training gaps ...
-GATE_FACTOR = 2.0
-#: ... and never below this [m].
+#: The gate threshold is never below this [m] (the factor is ``TrainConfig.gate_factor``).
 GATE_MIN = 0.03
 
 
@@ -127,7 +135,7 @@ def _train(args: argparse.Namespace) -> int:
     posture = args.action_kind != "velocity"  # posture and elbow: labels from the hand pose alone
     tcfg = TrainConfig(hidden=args.hidden, decoder_hidden=args.decoder_hidden, decoder_layers=args.decoder_layers,
                        epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
-                       input_noise=args.input_noise)  # fmt: skip
+                       input_noise=args.input_noise, gate_factor=args.gate_factor)  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain
@@ -164,7 +172,7 @@ def _train(args: argparse.Namespace) -> int:
 
     def make_meta(weights, data):
         meta = dict(base_meta)
-        meta.update(gate_thresholds(weights, meta, data))
+        meta.update(gate_thresholds(weights, meta, data, tcfg.gate_factor))
         return meta
 
     def epoch_done(side: str, epoch: int, losses: tuple[float, float]) -> None:

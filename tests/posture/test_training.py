@@ -50,6 +50,39 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
     np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-6)
 
 
+def test_gate_threshold_is_the_factor_times_the_p99_of_the_policys_own_gaps_on_the_training_states(demo):
+    from services.posture.cli import GATE_MIN, gate_thresholds
+
+    robot, _arms, data = demo
+    w, _ = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0))
+    meta = policy_meta(robot, 0.0)
+    at1 = gate_thresholds(w, meta, data, factor=1.0, floor=0.0)
+    at4 = gate_thresholds(w, meta, data, factor=4.0, floor=0.0)
+    for side in ("left", "right"):
+        st = at1["gate_stats"][side]
+        assert at1["gate_threshold"][side] == st["gap_p99_m"] > 0 and st["factor"] == 1.0
+        assert at4["gate_threshold"][side] == pytest.approx(4 * st["gap_p99_m"])
+        assert at4["gate_stats"][side]["factor"] == 4.0
+        floored = gate_thresholds(w, meta, data, factor=1.0)["gate_threshold"][side]
+        assert floored == max(st["gap_p99_m"], GATE_MIN)
+    # The gaps it ranks are the ones the policy's gate compares (float64 path: the fast one is within 1e-6
+    # of it, test_policy): at 1x the training p99 about 1 % of the training states close their arm's
+    # gate, at 4x none.
+    for factor, thresholds in ((1.0, at1), (4.0, at4)):
+        pol = PosturePolicy(w, {**meta, **thresholds})
+        for i in range(2):
+            other = data.S[1 - i][0]
+            closed = 0
+            for s in data.S[i]:
+                pair = np.stack([s, other] if i == 0 else [other, s])
+                closed += int(not pol.act_reference(pair).gate[i])
+            n = len(data.S[i])
+            if factor == 1.0:
+                assert 1 <= closed <= 0.01 * n + 1, (i, closed, n)
+            else:
+                assert closed == 0, (i, closed, n)
+
+
 def test_posture_kind_learns_the_operators_shoulder_posture_from_the_hand_alone(smallest):
     robot = build_robot_model(with_waist=False)
     arms = ArmsModel(robot)
@@ -101,7 +134,7 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     out, rep, png = tmp_path / "p.npz", tmp_path / "r.json", tmp_path / "curve.png"
     cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
            "--json", str(rep), "--plot", str(png), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1",
-           "--holdout-every", "2", "--chunk-s", "1.5"]  # fmt: skip
+           "--holdout-every", "2", "--chunk-s", "1.5", "--gate-factor", "3"]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
     pol = PosturePolicy.load(out)
@@ -114,6 +147,11 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     # default decoder: one hidden layer of 32 (it only feeds the gate); the encoder keeps --hidden
     assert meta["network"]["decoder"] == [17, 32, 6] and meta["network"]["encoder"] == [14, 8, 8, 3]
     assert [W.shape for W, _ in pol._dec64[0]] == [(17, 32), (32, 6)]
+    # the gate factor is recorded and gives the thresholds from the training gaps' p99 (floor 3 cm)
+    assert meta["train"]["gate_factor"] == 3.0
+    for s in ("left", "right"):
+        st = meta["gate_stats"][s]
+        assert st["factor"] == 3.0 and meta["gate_threshold"][s] == pytest.approx(max(3.0 * st["gap_p99_m"], 0.03))
     report = json.loads(rep.read_text())
     assert [r["round"] for r in report["relabel"]] == [0, 1]
     assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time
