@@ -22,11 +22,13 @@ from tests.support.faults import PIPELINE, burst, running_stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 RATE = 10000.0
-DURATION = 3.5
+DURATION = 5.0
 #: The burst saturates both cores (the publisher alone takes ~1), so single windows spike with CPU
 #: scheduling: one-second p99s of 215-1560 ms in quiet runs of this code. The bound only rules out the
 #: absurd; the trend check below is what tells bounded from queueing.
 P99_BOUND_MS = 2500.0
+#: The last second's p50 [ms]: far below where queueing would have taken it by then (see the check).
+LAST_P50_BOUND_MS = 1000.0
 
 
 def test_10khz_burst_latency_stays_bounded_and_drops_are_counted():
@@ -38,12 +40,15 @@ def test_10khz_burst_latency_stays_bounded_and_drops_are_counted():
     assert r["achieved_rate_hz"] > 3000, ctx
     assert r["reached"] > 10, ctx
     first, last = r["first_s"], r["last_s"]
-    assert first is not None and last is not None and last["t_s"] >= DURATION - 2.5, ctx
-    # Bounded, and not trending up: the last second is no worse than the first plus a fixed margin.
+    assert first is not None and last is not None and last["t_s"] >= DURATION - 2.0, ctx
+    # Bounded, and not trending up: every second under the absurd bound, the last one far below where
+    # queueing would have taken it.
     assert max(w["p99"] for w in r["windows"] if "p99" in w) < P99_BOUND_MS, ctx
     # Queueing shows as growth: the old callback path went from p50 245 ms in the first second to 965 ms
-    # in the last; this code's quiet runs: 413 -> 155, 279 -> 89, 258 -> 104, 281 -> 407 ms.
-    assert last["p50"] < 2.0 * first["p50"] + 300.0, ctx
+    # in the fourth (~240 ms more each second), so by the last second of this burst it would be past
+    # 1.4 s. Bounded, the last second's p50 was 55-590 ms in 11 runs here, with plateaus near 500 (first seconds 22-411
+    # ms: a bound relative to the first second failed CI once at 112 -> 586 ms, a noisy 14-frame window).
+    assert last["p50"] < LAST_P50_BOUND_MS, ctx
     # Old frames are dropped and counted, at retarget (bounded queue) and downstream.
     d = r["dropped"]
     assert d["retarget/main"].get("dropped.frames", 0) > 0, ctx
