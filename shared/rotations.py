@@ -31,6 +31,32 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return R.reshape(3, 3)
 
 
+def quats_to_matrices(Q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of quaternions (n, 4) w, x, y, z, each normalised in place first.
+
+    The batch form of :func:`quat_to_matrix` for per-frame paths (no checks: the quaternions must
+    have a norm, e.g. validated when their message was decoded).
+    """
+    R = np.empty((len(Q), 3, 3))
+    for q, r in zip(Q, R, strict=True):
+        mujoco.mju_normalize4(q)
+        mujoco.mju_quat2Mat(r.reshape(9), q)
+    return R
+
+
+def matrices_to_quats(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) w, x, y, z with w >= 0 of rotation matrices (n, 3, 3) (C-contiguous).
+
+    The batch form of :func:`matrix_to_quat`.
+    """
+    Q = np.empty((len(R), 4))
+    for q, r in zip(Q, R, strict=True):
+        mujoco.mju_mat2Quat(q, r.reshape(9))
+        if q[0] < 0.0:
+            q *= -1.0
+    return Q
+
+
 def quat_xyzw(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (4,) x, y, z, w (Rerun's order) of a rotation matrix (3, 3)."""
     return np.roll(matrix_to_quat(R), -1)

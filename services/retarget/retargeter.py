@@ -26,7 +26,6 @@ import logging
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 
-import mujoco
 import numpy as np
 
 from services.retarget.calibration import (
@@ -53,7 +52,7 @@ from shared.messages import Bone, Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.robot.profile import upper_arm_frame as upper_arm_link
-from shared.rotations import matrix_to_quat, quat_to_matrix
+from shared.rotations import matrices_to_quats, matrix_to_quat, quat_to_matrix, quats_to_matrices
 from shared.sequence import SequenceGuard
 from shared.targets import ELBOWS, SIDES, TARGET_NAMES, WRISTS, elbow_of, side_of, wrist_of
 from shared.wrist_only import is_wrist_only
@@ -576,11 +575,7 @@ class Retargeter(FrameIntake):
                     c = self.arms[side].centre
                     left[i] = arm_alignment(h_el - h_sh, H[i] - h_el, elbow - c, P[i] - elbow)
                     right[i] = rot_map.right
-        R_H = np.empty((n, 3, 3))
-        for i in range(n):  # as quat_to_matrix
-            mujoco.mju_normalize4(Q[i])
-            mujoco.mju_quat2Mat(R_H[i].reshape(9), Q[i])
-        R = left @ R_H @ right
+        R = left @ quats_to_matrices(Q) @ right
         if not all_valid:
             for i in range(n):
                 if not valid[i]:
@@ -598,11 +593,8 @@ class Retargeter(FrameIntake):
         self._has_prev = valid
         self._held_p = P
         self._held_R = R
-        q = np.empty((n, 4))
-        out = {}
-        for i, t in enumerate(TARGET_NAMES):
-            mujoco.mju_mat2Quat(q[i], R[i].reshape(9))  # as matrix_to_quat
-            if q[i, 0] < 0.0:
-                q[i] *= -1.0
-            out[t] = Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=self._use_rotation[i])
-        return out
+        q = matrices_to_quats(R)
+        return {
+            t: Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=self._use_rotation[i])
+            for i, t in enumerate(TARGET_NAMES)
+        }
