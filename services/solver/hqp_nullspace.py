@@ -43,6 +43,8 @@ class HqpNullspace(CascadeQp):
     Args:
         backend, eps, refine: see :class:`CascadeQp` (the shortcut and the QP solve the same damped problem).
         shortcut: try the unconstrained optimum before calling the QP.
+        compiled: run the recursion in the numba kernel (``hqp_kernel``, compiled when built); False runs the
+            numpy path, the readable reference the kernel is tested against. Both hand QP levels to ``backend``.
     """
 
     name = "hqp-nullspace"
@@ -57,27 +59,30 @@ class HqpNullspace(CascadeQp):
     ) -> None:
         super().__init__(backend, eps, refine)
         self.shortcut = shortcut
+        #: Run the recursion in the compiled kernel (``hqp_kernel``); False: the numpy reference path.
         self.compiled = compiled
-        self._kernel = None
-        if compiled:
-            # Imported here, so that processes without this solver do not load numba; compiled (or loaded
-            # from its cache) now, not on the first real-time tick.
-            from services.solver import hqp_kernel
-
-            hqp_kernel.warm_up()
-            self._kernel = hqp_kernel
+        self._kernel = self._load_kernel() if compiled else None
         self._ws = None
         self._eps_key: tuple | None = None
         self._eps_arr = np.zeros(0)
 
     def solve_problem(self, p: LevelProblem) -> Solution:
-        if self._kernel is not None and self.shortcut:
+        if self.compiled and self.shortcut:
             return self._solve_compiled(p)
         return self._solve_numpy(p)
 
+    def _load_kernel(self):
+        """The kernel module, compiled (or loaded from its cache) now, not on a real-time tick. Imported here, so
+        that processes without this solver do not load numba."""
+        from services.solver import hqp_kernel
+
+        hqp_kernel.warm_up()
+        self._kernel = hqp_kernel
+        return hqp_kernel
+
     def _solve_compiled(self, p: LevelProblem) -> Solution:
         """The recursion of :meth:`_solve_numpy` in the compiled kernel (``hqp_kernel``), the QPs here."""
-        hqp_kernel = self._kernel
+        hqp_kernel = self._kernel if self._kernel is not None else self._load_kernel()
         n = p.n
         A, b, offs, rows_max = self._stacked(p)
         L = offs.shape[0] - 1
