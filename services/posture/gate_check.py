@@ -3,8 +3,9 @@
 In distribution: a clip's wrist-only targets through :class:`~services.solver.core.SolverCore` with the
 policy; the share of ticks whose gate is open. Out of distribution: the same start, then the right
 hand is sent where no demonstration went (behind the back, across the body, upside down) and held
-there; the gate must close, the arm falls back to the rest-posture level, and every command stays
-within the joint position, velocity and step limits.
+there; the gate must close, the arm falls back to the rest-posture pull (over the solver's
+``posture_blend_time``, the policy's share of the level ending at 0), and every command stays within the
+joint position, velocity and step limits.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ def _run(core: SolverCore, msgs: list[tuple[float, TaskTargets | None]], robot) 
     dt = core.dt
     q_prev = core.q_out.copy()
     open_right, closed_right, violations, max_step = 0, 0, 0, 0.0
+    weights: list[float] = []
     statuses: dict[str, int] = {}
     for t, msg in msgs:
         cmd = core.step(msg, None, t)
@@ -39,6 +41,9 @@ def _run(core: SolverCore, msgs: list[tuple[float, TaskTargets | None]], robot) 
         if g is not None:
             open_right += int(g)
             closed_right += int(not g)
+        w = core.policy_weight.get("right")
+        if w is not None:
+            weights.append(w)
         violations += int(np.sum((cmd.q < robot.lower - 1e-9) | (cmd.q > robot.upper + 1e-9)))
         violations += int(np.sum(np.abs(cmd.qd) > robot.vmax + 1e-9))
         max_step = max(max_step, float(np.max(np.abs(cmd.q - q_prev) / (robot.vmax * dt))))
@@ -48,6 +53,10 @@ def _run(core: SolverCore, msgs: list[tuple[float, TaskTargets | None]], robot) 
     return {
         "ticks": len(msgs),
         "right_gate_open_fraction": open_right / n,
+        # the policy's share of the right arm's posture level (the gate's hand-over, ``posture_blend_time``):
+        # its mean, and at the last tick (0: the rest pull alone)
+        "right_policy_weight_mean": float(np.mean(weights)) if weights else None,
+        "right_policy_weight_last": weights[-1] if weights else None,
         "limit_violations": violations,
         "max_step_over_vmax_dt": max_step,
         "statuses": statuses,
