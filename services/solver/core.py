@@ -47,6 +47,9 @@ from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix
 from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
+#: ``SolverConfig.task_acceleration`` [m/s^2] by default, and with slow joints (motor acceleration limits).
+TASK_ACCELERATION = 30.0
+MOTOR_LIMITS_TASK_ACCELERATION = 10.0
 #: ``SolverConfig.level1_reserve`` by default when the robot has slow joints (motor acceleration limits): 0.4
 #: gave 3.2 cm of gesture elbow for 1.9 cm of wrist, 0.2 3.5 cm for 1.3 cm (h12a notes).
 MOTOR_LIMITS_RESERVE = 0.2
@@ -94,6 +97,11 @@ class SolverConfig:
         task_acceleration: acceleration [m/s^2] the wrist (level-1) errors are closed with at
             most: their gain is capped so the demanded speed can still be braked to zero at the error
             (see ``SolverCore._shape_gains``; the joints' own acceleration limit is the hard one).
+            None (default): 30 m/s^2, or ``MOTOR_LIMITS_TASK_ACCELERATION`` (10) when the robot has a slow
+            joint (the G1 with its motor limits, whose arms give the wrist about 1.5-7 m/s^2 from rest: a
+            braking curve at 30 overshoots and the wrist level stays infeasible). With the motor limits on
+            the 16 gesture clips, 10 against 30: wrist mean 1.29 -> 1.01 cm, elbow 3.55 -> 3.48, longest
+            stuck_s 7.3 -> 1.5 s (h12a notes).
         closed_loop: re-anchor (reset) on the measured joints when they drift beyond ``resync_threshold``.
         max_command_lead: the command is kept within this distance [rad] of the measured joints (a
             braking window around them, see ``bounds``), so a blocked arm is not commanded far from
@@ -196,7 +204,7 @@ class SolverConfig:
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     closed_loop: bool = False
-    task_acceleration: float = 30.0
+    task_acceleration: float | None = None
     max_command_lead: float | None = 0.15
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
@@ -232,6 +240,8 @@ class SolverConfig:
         bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
         if bad:
             raise ValueError(f"gains [1/s] must be > 0, got {bad}")
+        if self.task_acceleration is not None and not self.task_acceleration > 0:
+            raise ValueError(f"task_acceleration must be > 0 [m/s^2] or None, got {self.task_acceleration}")
         if self.level1_reserve is not None and not 0.0 <= self.level1_reserve < 1.0:
             raise ValueError(f"level1_reserve must be in [0, 1), got {self.level1_reserve}")
         if not 0.0 <= self.posture_blend_time <= 10.0:
@@ -268,6 +278,11 @@ class SolverCore:
         self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
+        a_task = cfg.task_acceleration
+        if a_task is None:
+            a_task = MOTOR_LIMITS_TASK_ACCELERATION if self.slow.idx.size else TASK_ACCELERATION
+        #: [m/s^2] the wrist errors are closed with at most (``_shape_gains``)
+        self.task_acceleration = a_task
         reserve = cfg.level1_reserve
         if reserve is None:
             reserve = MOTOR_LIMITS_RESERVE if self.slow.idx.size else 0.0
@@ -753,10 +768,10 @@ class SolverCore:
         A proportional velocity demand ``gain * e`` under an acceleration limit overshoots: it
         asks to keep speed until the error is nearly gone and then cannot stop (a 0.05 rad joint step
         at gain 200 and 100 rad/s^2 overshoots by half). The demand is capped at the braking speed ``sqrt(2 a e)`` with
-        ``a = task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
+        ``a = self.task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
         errors (below 2 a / gain^2, 1.5 mm at the defaults), braking in time for large ones.
         """
-        a2 = 2.0 * self.config.task_acceleration
+        a2 = 2.0 * self.task_acceleration
         conf = self.configuration
         for task in self._position_tasks:
             e = task.p_target - conf.get_frame_pose(task.frame)[0]

@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from services.evaluation.runner import load_and_retarget, run_algorithm
-from services.solver.core import SolverConfig, SolverCore
+from services.solver.core import (
+    MOTOR_LIMITS_RESERVE,
+    MOTOR_LIMITS_TASK_ACCELERATION,
+    TASK_ACCELERATION,
+    SolverConfig,
+    SolverCore,
+)
 from services.solver.slow_joints import ACCEL_SHARE, SlowJoints
 from shared.paths import mocap_dir
 from shared.robot.pinocchio_model import build_robot_model
@@ -29,11 +35,19 @@ def motor_robot(tmp_path_factory):
 
 
 def test_slow_joints_are_the_waist_with_motor_limits_and_none_without(motor_robot, robot17):
-    slow = SolverCore(motor_robot, SolverConfig()).slow
-    assert {motor_robot.joint_names[i] for i in slow.idx} == set(motor_robot.profile.waist)
-    # the global 1000 rad/s^2 cap of the shipped profile: no joint is slow, the levels are today's
-    assert SolverCore(robot17, SolverConfig()).slow.idx.size == 0
-    assert SolverCore(motor_robot, SolverConfig(slow_joint_acceleration=0.0)).slow.idx.size == 0
+    core = SolverCore(motor_robot, SolverConfig())
+    assert {motor_robot.joint_names[i] for i in core.slow.idx} == set(motor_robot.profile.waist)
+    # with a slow joint, the defaults follow what the arms can do: a braking curve at 10 m/s^2, a level-1 reserve
+    assert (core.task_acceleration, core._reserve) == (MOTOR_LIMITS_TASK_ACCELERATION, MOTOR_LIMITS_RESERVE)
+    # the global 1000 rad/s^2 cap of the shipped profile: no joint is slow, the levels and demands are today's
+    shipped = SolverCore(robot17, SolverConfig())
+    assert shipped.slow.idx.size == 0
+    assert (shipped.task_acceleration, shipped._reserve) == (TASK_ACCELERATION, 0.0)
+    off = SolverCore(motor_robot, SolverConfig(slow_joint_acceleration=0.0))
+    assert off.slow.idx.size == 0 and off.task_acceleration == TASK_ACCELERATION
+    # explicit values win; the reserve is for the strict hierarchies only
+    assert SolverCore(robot17, SolverConfig(task_acceleration=7.0, level1_reserve=0.3))._reserve == 0.3
+    assert SolverCore(motor_robot, SolverConfig(algo="wqp"))._reserve == 0.0
 
 
 def test_a_slow_joint_is_pulled_to_rest_within_its_own_box():
@@ -99,7 +113,7 @@ def test_wave_right_hand_elbows_with_motor_limits(motor_robot):
     err = {}
     for name, solver in {
         "shipped": {},
-        "waist_in_tasks": {"slow_joint_acceleration": 0.0, "level1_reserve": 0.0},
+        "waist_in_tasks": {"slow_joint_acceleration": 0.0, "level1_reserve": 0.0, "task_acceleration": 30.0},
     }.items():
         tr = run_algorithm(motor_robot, targets, "hqp-nullspace", qp="daqp", solver=solver, collisions=False)
         el = np.concatenate([np.linalg.norm(tr.ref_p[e] - tr.kin_p[e], axis=1) for e in ("left_elbow", "right_elbow")])
