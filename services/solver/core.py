@@ -169,8 +169,8 @@ class SolverConfig:
             the elbows no freedom; ``SolverCore._solve``). None (default): ``MOTOR_LIMITS_RESERVE`` when the
             robot has a slow joint (above: the G1 with its motor limits), else 0, so the shipped G1 is solved
             exactly as before (with 0.2 on the shipped G1 the gesture wrists lost 13 %: 0.090 -> 0.102 cm).
-            With the motor limits, 16 gesture clips (``mimic eval --no-sim``): elbow mean 10.6 -> 3.5 cm,
-            wrist 1.26 -> 1.29 cm against slow joints alone (h12a notes).
+            With the motor limits, 16 gesture clips (``mimic eval --no-sim``, task_acceleration 30): elbow
+            mean 10.6 -> 3.5 cm, wrist 1.26 -> 1.29 cm against slow joints alone (h12a notes).
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
             ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
