@@ -15,6 +15,15 @@ REPO = REPO_ROOT
 MOCAP_DIR = _mocap_dir()
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile (or load) the solver's numba kernel once before any test: many tests start solver processes
+    with a deadline, and in a fresh clone the first of them would otherwise spend ~10 s of CPU compiling
+    it (all of them at once under xdist-like concurrency). Cached, this costs about 1 s."""
+    from services.solver import hqp_kernel
+
+    hqp_kernel.warm_up()
+
+
 def _require(path: Path) -> Path:
     if not path.exists():
         pytest.skip(f"real mocap data not found at {path} (set MIMIC_MOCAP_DIR); it is read at run time, never copied")

@@ -33,6 +33,9 @@ from services.solver.inequalities import level_rows
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
 
+#: "No inequality rows" for the kernel: G (0, 1) and h (0,) (never indexed).
+_NO_G, _NO_H = np.zeros((0, 1)), np.zeros(0)
+
 
 class HqpNullspace(CascadeQp):
     """Null-space recursive HQP.
@@ -40,6 +43,8 @@ class HqpNullspace(CascadeQp):
     Args:
         backend, eps, refine: see :class:`CascadeQp` (the shortcut and the QP solve the same damped problem).
         shortcut: try the unconstrained optimum before calling the QP.
+        compiled: run the recursion in the numba kernel (``hqp_kernel``, compiled when built); False runs the
+            numpy path, the readable reference the kernel is tested against. Both hand QP levels to ``backend``.
     """
 
     name = "hqp-nullspace"
@@ -50,11 +55,92 @@ class HqpNullspace(CascadeQp):
         eps: float | Sequence[float] = 1e-9,
         shortcut: bool = True,
         refine: bool | None = None,
+        compiled: bool = True,
     ) -> None:
         super().__init__(backend, eps, refine)
         self.shortcut = shortcut
+        #: Run the recursion in the compiled kernel (``hqp_kernel``); False: the numpy reference path.
+        self.compiled = compiled
+        self._kernel = self._load_kernel() if compiled else None
+        self._ws = None
+        self._eps_key: tuple | None = None
+        self._eps_arr = np.zeros(0)
 
     def solve_problem(self, p: LevelProblem) -> Solution:
+        if self.compiled and self.shortcut:
+            return self._solve_compiled(p)
+        return self._solve_numpy(p)
+
+    def _load_kernel(self):
+        """The kernel module, compiled (or loaded from its cache) now, not on a real-time tick. Imported here, so
+        that processes without this solver do not load numba."""
+        from services.solver import hqp_kernel
+
+        hqp_kernel.warm_up()
+        self._kernel = hqp_kernel
+        return hqp_kernel
+
+    def _solve_compiled(self, p: LevelProblem) -> Solution:
+        """The recursion of :meth:`_solve_numpy` in the compiled kernel (``hqp_kernel``), the QPs here."""
+        hqp_kernel = self._kernel if self._kernel is not None else self._load_kernel()
+        n = p.n
+        A, b, offs, rows_max = self._stacked(p)
+        L = offs.shape[0] - 1
+        ws = self._ws
+        if ws is None or ws.n != n or ws.m < rows_max or ws.levels < L:
+            ws = self._ws = hqp_kernel.Workspace(n, max(rows_max, n), L)
+        if self._eps_key != (self.eps, L):
+            self._eps_key = (self.eps, L)
+            self._eps_arr = np.array([self.level_eps(k) for k in range(L)])
+        ineq = p.ineq
+        # C-ordered float64 everywhere: the kernel is compiled for exactly these types once (warm_up), and
+        # another layout (a fancy-indexed G) would compile a second version on a real-time tick.
+        G, h = (_c(ineq.G), _c(ineq.h)) if ineq is not None else (_NO_G, _NO_H)
+        lb, ub = _c(p.lb), _c(p.ub)
+        st = ws.state
+        st[:] = 0
+        st[hqp_kernel.ST_COLS] = -1
+        iters = calls = 0
+        resume = False
+        while hqp_kernel.run_levels(A, b, offs, lb, ub, self._eps_arr, G, h, ws.W, ws.I, resume):
+            if st[hqp_kernel.ST_STATUS] == hqp_kernel.SINGULAR:
+                raise np.linalg.LinAlgError("hqp kernel: singular damped normal equations")
+            # This level's unconstrained optimum broke a bound: its QP, as in the numpy path.
+            k, r, m = int(st[hqp_kernel.ST_LEVEL]), int(st[hqp_kernel.ST_COLS]), int(st[hqp_kernel.ST_ROWS])
+            Z = None if r < 0 else ws.Z[:, :r]
+            M = ws.M[:m, : n if r < 0 else r]
+            c = ws.c[:m]
+            base = ws.base
+            lo, hi = lb - base, ub - base
+            w, its, status = self._level_qp(M, c, Z, lo, hi, k, level_rows(ineq, Z, base, lo, hi))
+            iters += its
+            calls += 1
+            if w is None:
+                reason = f"level 1 QP: {status}" if k == 0 else f"level {k + 1} QP {status}; kept levels 1-{k}"
+                return p.solution(ws.x.copy(), k != 0, iters, calls, reason)
+            xt = base + (w if Z is None else Z @ w)
+            if not within(xt, lb, ub, QP_BOUND_TOL) or (ineq is not None and not ineq.satisfied(xt, QP_BOUND_TOL)):
+                gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
+                return p.solution(ws.x.copy(), k != 0, iters, calls, f"level {k + 1} QP left the box by {gap:.2e}")
+            ws.x[:] = clip(xt, lb, ub)
+            resume = True
+        return Solution(ws.x.copy(), ws.res[:L].tolist(), True, iters, calls, int(st[hqp_kernel.ST_ACTIVE]), "")
+
+    def _stacked(self, p: LevelProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Every level's rows as one (sum m_k, n) matrix and (sum m_k,) vector, the (L + 1,) level offsets
+        and the most rows on a level (the LevelStack's own buffers when p came from it)."""
+        stack = self._stack
+        if stack is not None and p.As is stack.A:
+            return stack.A_all, stack.b_all, stack.offsets, stack.max_rows
+        n = p.n
+        sizes = [a.shape[0] for a in p.As]
+        offs = np.cumsum([0, *sizes]).astype(np.int64)
+        A = np.vstack([np.asarray(a, dtype=float).reshape(-1, n) for a in p.As])
+        b = np.concatenate([np.asarray(v, dtype=float).reshape(-1) for v in p.bs])
+        return A, b, offs, max(sizes)
+
+    def _solve_numpy(self, p: LevelProblem) -> Solution:
+        """The readable reference of the recursion (numpy and LAPACK calls), the oracle of the kernel's tests."""
         As, bs, lb, ub, ineq = p.As, p.bs, p.lb, p.ub, p.ineq
         x = np.zeros(p.n)
         # Damping pulls towards the centre of the box rather than towards zero: with acceleration limits the
@@ -148,6 +234,11 @@ class HqpNullspace(CascadeQp):
                     return refine_on_active_set(M, c, r.x, G, gl, gu, eps=eps0), iters, status
                 return refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0), iters, status
         return None, iters, status
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """a as a C-ordered float64 array (itself when it is one)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _damped_lstsq(M: np.ndarray, c: np.ndarray, eps: float) -> np.ndarray:

@@ -21,13 +21,21 @@ class LevelStack:
         self.levels = [list(tasks) for tasks in levels]
         self.n = n
         self.key = _key(levels)
+        sizes = [sum(t.dim for t in tasks) for tasks in self.levels]
+        #: (L + 1,) row offsets of the levels in A_all / b_all.
+        self.offsets = np.cumsum([0, *sizes]).astype(np.int64)
+        #: Most rows on one level.
+        self.max_rows = max(sizes, default=0)
+        #: (sum m_k, n) and (sum m_k,): every level's rows in one buffer (the compiled HQP reads it whole);
+        #: A and b are its per-level views.
+        self.A_all = np.zeros((int(self.offsets[-1]), n))
+        self.b_all = np.zeros(int(self.offsets[-1]))
         self.A: list[np.ndarray] = []
         self.b: list[np.ndarray] = []
         self._rows: list[tuple[Task, np.ndarray, np.ndarray]] = []
-        for tasks in self.levels:
-            m = sum(t.dim for t in tasks)
-            A = np.zeros((m, n))
-            b = np.zeros(m)
+        for k, tasks in enumerate(self.levels):
+            A = self.A_all[self.offsets[k] : self.offsets[k + 1]]
+            b = self.b_all[self.offsets[k] : self.offsets[k + 1]]
             i = 0
             for t in tasks:
                 self._rows.append((t, A[i : i + t.dim], b[i : i + t.dim]))
