@@ -51,7 +51,7 @@ from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 TASK_ACCELERATION = 30.0
 MOTOR_LIMITS_TASK_ACCELERATION = 10.0
 #: ``SolverConfig.level1_reserve`` by default when the robot has slow joints (motor acceleration limits): 0.4
-#: gave 3.2 cm of gesture elbow for 1.9 cm of wrist, 0.2 3.5 cm for 1.3 cm (h12a notes).
+#: gave 3.2 cm of gesture elbow for 1.9 cm of wrist, 0.2 3.5 cm for 1.3 cm (at task_acceleration 30; h12a notes).
 MOTOR_LIMITS_RESERVE = 0.2
 #: Algorithms with strict levels (a recovery level can sit between two of them).
 STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
