@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.solver.base import Solution
+from services.solver.base import LevelProblem, Solution
 from services.solver.bounds import JointBounds
 from services.solver.centring import RangeCentringTask
 from services.solver.collision import SelfCollisionAvoidance
@@ -38,6 +38,7 @@ from services.solver.inequalities import Inequalities
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
 from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
+from services.solver.slow_joints import SlowJoints
 from services.solver.targets import TargetSample, TargetTracker
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
@@ -46,6 +47,12 @@ from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix
 from shared.targets import ELBOWS, SIDES, WRISTS, side_of
 
+#: ``SolverConfig.task_acceleration`` [m/s^2] by default, and with slow joints (motor acceleration limits).
+TASK_ACCELERATION = 30.0
+MOTOR_LIMITS_TASK_ACCELERATION = 10.0
+#: ``SolverConfig.level1_reserve`` by default when the robot has slow joints (motor acceleration limits): 0.4
+#: gave 3.2 cm of gesture elbow for 1.9 cm of wrist, 0.2 3.5 cm for 1.3 cm (at task_acceleration 30; h12a notes).
+MOTOR_LIMITS_RESERVE = 0.2
 #: Algorithms with strict levels (a recovery level can sit between two of them).
 STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
@@ -90,6 +97,11 @@ class SolverConfig:
         task_acceleration: acceleration [m/s^2] the wrist (level-1) errors are closed with at
             most: their gain is capped so the demanded speed can still be braked to zero at the error
             (see ``SolverCore._shape_gains``; the joints' own acceleration limit is the hard one).
+            None (default): 30 m/s^2, or ``MOTOR_LIMITS_TASK_ACCELERATION`` (10) when the robot has a slow
+            joint (the G1 with its motor limits, whose arms give the wrist about 1.5-7 m/s^2 from rest: a
+            braking curve at 30 overshoots and the wrist level stays infeasible). With the motor limits on
+            the 16 gesture clips, 10 against 30: wrist mean 1.29 -> 1.01 cm, elbow 3.55 -> 3.48, longest
+            stuck_s 7.3 -> 1.5 s (h12a notes).
         closed_loop: re-anchor (reset) on the measured joints when they drift beyond ``resync_threshold``.
         max_command_lead: the command is kept within this distance [rad] of the measured joints (a
             braking window around them, see ``bounds``), so a blocked arm is not commanded far from
@@ -143,6 +155,22 @@ class SolverConfig:
         range_centring_gain: gain [1/s] of the centring's pull back to the band's edge. With 5 (the
             posture gain) byebye_normal's elbow mean rose 0.975 -> 1.10 cm and the wave's stayed
             1.00; 20 keeps byebye at 0.977 and the wave at 0.92.
+        slow_joint_acceleration: joints whose acceleration limit (``RobotModel.amax``) is below this [rad/s^2]
+            are kept out of every task level: their velocity is fixed first each tick, a pull to the rest pose
+            at ``posture_gain`` within their own limits, and the arms compensate (``slow_joints.SlowJoints``;
+            0 = off). With the shipped G1 profile (one 1000 rad/s^2 cap) no joint is slow; with its motor
+            limits (``motor_acceleration_limits = true``) the waist is (3.2-39 rad/s^2 against 44-830 for the
+            arms): in the tasks it sat at its acceleration bound on 92-100 % of the ticks and swung end to
+            end, wave-right-hand elbow 16.7 -> 5.7 cm without it (``mimic eval --no-sim``, h12a notes).
+        level1_reserve: strict hierarchies only: on a tick where the wrist level cannot be met within the box,
+            its demand is re-aimed at the best task velocity reachable with each joint within ``1 - reserve``
+            of its half-box around the box centre, so the lower levels keep ``reserve`` of every joint's
+            acceleration band (0 = off: the least-squares optimum of the full box, whose active joints leave
+            the elbows no freedom; ``SolverCore._solve``). None (default): ``MOTOR_LIMITS_RESERVE`` when the
+            robot has a slow joint (above: the G1 with its motor limits), else 0, so the shipped G1 is solved
+            exactly as before (with 0.2 on the shipped G1 the gesture wrists lost 13 %: 0.090 -> 0.102 cm).
+            With the motor limits, 16 gesture clips (``mimic eval --no-sim``, task_acceleration 30): elbow
+            mean 10.6 -> 3.5 cm, wrist 1.26 -> 1.29 cm against slow joints alone (h12a notes).
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
             ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
@@ -176,7 +204,7 @@ class SolverConfig:
     target_timeout: float = 0.5
     resync_threshold: float = 0.3
     closed_loop: bool = False
-    task_acceleration: float = 30.0
+    task_acceleration: float | None = None
     max_command_lead: float | None = 0.15
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
@@ -187,6 +215,8 @@ class SolverConfig:
     range_centring_cost: float = 3.0
     range_centring_band: float = 0.25
     range_centring_gain: float = 20.0
+    slow_joint_acceleration: float = 40.0
+    level1_reserve: float | None = None
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     posture_blend_time: float = 0.3
@@ -210,6 +240,10 @@ class SolverConfig:
         bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
         if bad:
             raise ValueError(f"gains [1/s] must be > 0, got {bad}")
+        if self.task_acceleration is not None and not self.task_acceleration > 0:
+            raise ValueError(f"task_acceleration must be > 0 [m/s^2] or None, got {self.task_acceleration}")
+        if self.level1_reserve is not None and not 0.0 <= self.level1_reserve < 1.0:
+            raise ValueError(f"level1_reserve must be in [0, 1), got {self.level1_reserve}")
         if not 0.0 <= self.posture_blend_time <= 10.0:
             raise ValueError(f"posture_blend_time must be in [0, 10] s, got {self.posture_blend_time}")
         if self.smoothing_ticks <= MAX_STEP_TICKS:
@@ -243,6 +277,17 @@ class SolverCore:
         m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
         self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
+        a_task = cfg.task_acceleration
+        if a_task is None:
+            a_task = MOTOR_LIMITS_TASK_ACCELERATION if self.slow.idx.size else TASK_ACCELERATION
+        #: [m/s^2] the wrist errors are closed with at most (``_shape_gains``)
+        self.task_acceleration = a_task
+        reserve = cfg.level1_reserve
+        if reserve is None:
+            reserve = MOTOR_LIMITS_RESERVE if self.slow.idx.size else 0.0
+        #: share of each joint's band kept for the lower levels on a tick the wrists cannot be met (strict only)
+        self._reserve = reserve if cfg.algo in STRICT_ALGORITHMS else 0.0
         self.collision = (
             SelfCollisionAvoidance(robot) if cfg.self_collision and robot.profile.collision is not None else None
         )
@@ -597,8 +642,9 @@ class SolverCore:
             # Right below the wrists: the arm moves to the IK posture without touching level 1.
             levels = [levels[0], [self.recovery.task], *levels[1:]]
         lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
+        self.slow.fix(self.q_raw, self.qd_raw, lb, ub, self.bounds.amax, dt)
         ineq = self._ineq = self._collision_rows(lb, ub)
-        sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
+        sol = self._solve(levels, lb, ub, ineq)
         if not sol.ok and ineq is not None and ineq.rows:
             # Rows each feasible but not together (two pairs braking against each other): no pair may
             # approach faster than braking every joint would make it.
@@ -611,6 +657,36 @@ class SolverCore:
         self._integrate(qd, dt)
         self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
+
+    def _solve(self, levels: list, lb: np.ndarray, ub: np.ndarray, ineq: Inequalities | None) -> Solution:
+        """The algorithm's solution; with a level-1 reserve, its wrist demand first re-aimed where it cannot be met.
+
+        Why: a wrist level that cannot be met in the box ends at its least-squares optimum, on a vertex of the
+        box with most joints at an acceleration bound, and its null space within the box is then (nearly) a
+        point: the elbows get nothing, tick after tick (h12a: 8.6 of 17 joints at their bound and level 1 met
+        on 0 % of a gesture clip's ticks with the motor limits). Here the wrist level alone is solved first in
+        the box shrunk around its centre to ``1 - reserve`` of each half-width; when that cannot meet the
+        demand, its reachable task velocity becomes the demand, which the full box then meets with
+        ``reserve`` of every joint's band to spare for the lower levels. The residual reported for level 1 is
+        against the original demand (the status tells the truth). A tick the wrists can meet in the shrunk box
+        is solved unchanged (one extra closed-form level-1 solve).
+        """
+        conf = self.configuration
+        if not self._reserve:
+            return self.algorithm.solve(conf, levels, lb, ub, ineq)
+        As, bs = self.algorithm.stack(levels, self.n).fill(conf)
+        mid = 0.5 * (lb + ub)
+        h = (1.0 - self._reserve) * 0.5 * (ub - lb)
+        first = self.algorithm.solve_problem(LevelProblem(As[:1], bs[:1], mid - h, mid + h, ineq))
+        if not first.ok or first.residuals[0] <= self.config.infeasible_tol:
+            return self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
+        demand = bs[0].copy()
+        np.matmul(As[0], first.qd, out=bs[0])
+        sol = self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
+        r = As[0] @ sol.qd - demand
+        if sol.residuals:
+            sol.residuals[0] = math.sqrt(float(r @ r))
+        return sol
 
     def _collision_rows(self, lb: np.ndarray, ub: np.ndarray) -> Inequalities | None:
         """Self-collision damper rows at q_raw, each one feasible within this step's box (None: off)."""
@@ -692,10 +768,10 @@ class SolverCore:
         A proportional velocity demand ``gain * e`` under an acceleration limit overshoots: it
         asks to keep speed until the error is nearly gone and then cannot stop (a 0.05 rad joint step
         at gain 200 and 100 rad/s^2 overshoots by half). The demand is capped at the braking speed ``sqrt(2 a e)`` with
-        ``a = task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
+        ``a = self.task_acceleration``, i.e. the gain at ``sqrt(2 a / e)``: unchanged for small
         errors (below 2 a / gain^2, 1.5 mm at the defaults), braking in time for large ones.
         """
-        a2 = 2.0 * self.config.task_acceleration
+        a2 = 2.0 * self.task_acceleration
         conf = self.configuration
         for task in self._position_tasks:
             e = task.p_target - conf.get_frame_pose(task.frame)[0]

@@ -81,8 +81,10 @@ def test_event_ticks_at_1khz_keep_vmax_and_amax_over_wall_clock_time(robot, algo
         fastest = max(fastest, float(np.max(np.abs(cmd.qd) / robot.vmax)))
     check.assert_safe(f"{algo} event 1 kHz")
     assert fastest > 0.8  # the jumps drove joints near their top speed: the limits were tested
-    # ... and the joint with the lowest a_max used most of it (its own limit bound it, not another's).
-    assert check.a_joint[np.argmin(robot.amax)] > 0.5
+    # ... and the task-driven joint with the lowest a_max used most of it (its own limit bound it, not
+    # another's). Slow joints (the waist under the motor limits) are not driven by the tasks: a pull to rest.
+    driven = np.setdiff1d(np.arange(robot.nq), core.slow.idx)
+    assert check.a_joint[driven[np.argmin(robot.amax[driven])]] > 0.5
     assert core.counts["safety_clamps"] == 0
 
 
