@@ -9,6 +9,15 @@ from services.solver.qp import QpBackend
 
 #: Regularisation of the one retry of a level whose QP failed.
 RETRY_EPS = 1e-6
+#: Widening [rad/s] of a level QP's box, rows and equalities for the last retry of a level whose QP failed with
+#: and without ``RETRY_EPS``. When the levels above left qd exactly on joint bounds, the level's feasible set is
+#: a face of zero width (the largest margin inside it measured 1e-13 to 1e-11 rad/s on real clips), and
+#: round-off decides whether DAQP and PIQP find it empty; the level was then dropped and qd jumped by 0.5-1
+#: rad/s (s6/h13n, h12b). Dropped levels in the eval of five real clips: 9 without this retry, 6 at 1e-9
+#: (DAQP's primal_tol), 2 at 1e-8, 1 at 3e-8 (a face that needs 1e-5); 1e-7 is the caller's ``QP_BOUND_TOL``,
+#: so answers on that box fail its check. The caller clips the answer back onto the box; it is the optimum
+#: over the slightly larger face, within ~1e-3 rad/s of the other path's on the same problems.
+RETRY_WIDEN = 3e-8
 
 
 class CascadeQp(Algorithm):

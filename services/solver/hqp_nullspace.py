@@ -28,7 +28,7 @@ from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import FEASIBLE_TOL, QP_BOUND_TOL, LevelProblem, Solution, clip, violation, within
-from services.solver.cascade import RETRY_EPS, CascadeQp
+from services.solver.cascade import RETRY_EPS, RETRY_WIDEN, CascadeQp
 from services.solver.inequalities import level_rows
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
@@ -61,6 +61,8 @@ class HqpNullspace(CascadeQp):
         self.shortcut = shortcut
         #: Run the recursion in the compiled kernel (``hqp_kernel``); False: the numpy reference path.
         self.compiled = compiled
+        #: Level QPs solved only on the box widened by ``RETRY_WIDEN`` (see :meth:`_level_qp`), since built.
+        self.widened = 0
         self._kernel = self._load_kernel() if compiled else None
         self._ws = None
         self._eps_key: tuple | None = None
@@ -207,6 +209,9 @@ class HqpNullspace(CascadeQp):
 
         A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
         once with ``RETRY_EPS`` regularisation and refined on its active set, which removes that bias again.
+        When both fail, both are tried once more on the box (and rows) widened by ``RETRY_WIDEN``: a level whose
+        feasible set touches bounds the levels above sit on is otherwise lost to round-off. The caller clips
+        the result back onto the box. Only failed levels reach the retry, so every other tick is unchanged.
 
         Returns:
             (z or None, iterations, status text).
@@ -214,25 +219,30 @@ class HqpNullspace(CascadeQp):
         iters = 0
         status = ""
         eps0 = self.level_eps(k)
-        for eps, refine in ((eps0, self.refine), (max(RETRY_EPS, eps0), True)):
+        G, gl, gu = rows
+        attempts = ((eps0, self.refine, 0.0), (max(RETRY_EPS, eps0), True, 0.0))
+        for eps, refine, widen in (*attempts, *((e, r, RETRY_WIDEN) for e, r, _ in attempts)):
+            lo_w, hi_w = (lo - widen, hi + widen) if widen else (lo, hi)
+            gl_w, gu_w = (gl - widen, gu + widen) if widen and G is not None else (gl, gu)
             H = M.T @ M
             H.flat[:: H.shape[0] + 1] += eps
             f = -(M.T @ c)
-            G, gl, gu = rows
             if G is not None:
-                r = self.backend.solve(H, f, G=G, gl=gl, gu=gu, key=f"ns{k}g")
+                r = self.backend.solve(H, f, G=G, gl=gl_w, gu=gu_w, key=f"ns{k}g")
             elif Z is None:
-                r = self.backend.solve(H, f, lb=lo, ub=hi, key=f"ns{k}")
+                r = self.backend.solve(H, f, lb=lo_w, ub=hi_w, key=f"ns{k}")
             else:
-                r = self.backend.solve(H, f, G=Z, gl=lo, gu=hi, key=f"ns{k}")
+                r = self.backend.solve(H, f, G=Z, gl=lo_w, gu=hi_w, key=f"ns{k}")
             iters += r.iters
             status = r.status
             if r.ok:
+                if widen:
+                    self.widened += 1
                 if not refine:
                     return r.x, iters, status
                 if G is not None:
-                    return refine_on_active_set(M, c, r.x, G, gl, gu, eps=eps0), iters, status
-                return refine_on_active_set(M, c, r.x, Z, lo, hi, eps=eps0), iters, status
+                    return refine_on_active_set(M, c, r.x, G, gl_w, gu_w, eps=eps0), iters, status
+                return refine_on_active_set(M, c, r.x, Z, lo_w, hi_w, eps=eps0), iters, status
         return None, iters, status
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import QP_BOUND_TOL, LevelProblem, Solution, clip, within
-from services.solver.cascade import RETRY_EPS, CascadeQp
+from services.solver.cascade import RETRY_EPS, RETRY_WIDEN, CascadeQp
 from services.solver.inequalities import NO_BOUND
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
@@ -79,6 +79,22 @@ class HqpOriginal(CascadeQp):
                 r2 = self.backend.solve(H, f, lb=lo, ub=hi, G=G, gl=gl, gu=gu, E=E, e=e, key=f"orig{k}")
                 r2.iters += r.iters
                 r = r2
+            lo_k, hi_k, gu_k = lo, hi, gu
+            if not r.ok:
+                # The levels above left y on bounds, so this level's feasible set (box and E y = e) is a face
+                # of zero width that round-off can make empty: one last try with the box, the rows and the
+                # equalities (as a band) widened by RETRY_WIDEN; the refinement restores E y = e, the clip
+                # below the box.
+                lo_k, hi_k = lo - RETRY_WIDEN, hi + RETRY_WIDEN
+                gu_k = None if gu is None else gu + RETRY_WIDEN
+                Gw, glw, guw = G, gl, gu_k
+                if E is not None:
+                    Gw = E if G is None else np.vstack((G, E))
+                    glw = e - RETRY_WIDEN if G is None else np.r_[gl, e - RETRY_WIDEN]
+                    guw = e + RETRY_WIDEN if G is None else np.r_[gu_k, e + RETRY_WIDEN]
+                r3 = self.backend.solve(H, f, lb=lo_k, ub=hi_k, G=Gw, gl=glw, gu=guw, key=f"orig{k}w")
+                r3.iters += r.iters
+                r = r3
             iters += r.iters
             calls += 1
             if not r.ok or not within(r.x, lo, hi, QP_BOUND_TOL) or (G is not None and np.any(G @ r.x > gu + 1e-7)):
@@ -90,9 +106,9 @@ class HqpOriginal(CascadeQp):
             if not self.refine:
                 ys = r.x
             elif G is None:
-                ys = refine_on_active_set(A, c, r.x, None, lo, hi, E, e, eps=eps)
+                ys = refine_on_active_set(A, c, r.x, None, lo_k, hi_k, E, e, eps=eps)
             else:
                 Gs = np.vstack((np.eye(n), G))
-                ys = refine_on_active_set(A, c, r.x, Gs, np.r_[lo, gl], np.r_[hi, gu], E, e, eps=eps)
+                ys = refine_on_active_set(A, c, r.x, Gs, np.r_[lo_k, gl], np.r_[hi_k, gu_k], E, e, eps=eps)
             y = clip(np.array(ys), lo, hi)
         return p.solution(clip(mid + y, lb, ub), True, iters, calls, reason)
