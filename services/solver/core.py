@@ -179,11 +179,11 @@ class SolverConfig:
             wave-left-hand masculine, the sim's arm self-collision steps go 466/23/1904/78 -> 0 (hqp and
             wqp), min clearance >= 1.6 cm; gesture errors unchanged. Cost, CPU time on a shared 2-core
             box: about 0.25 ms p50 a tick for the distances and rows (as the mesh version it replaces),
-            but rows reach the QP on 3.5-60 % of ticks instead of 82-91 % (h12c notes). **On by
-            default** (``mimic solve --no-self-collision`` turns it off): it was off while the tick did
-            not fit 500 Hz beside the stack on 2 cores (session 3: the real-time tests failed with it
-            on); with the compiled null-space recursion (``hqp_kernel``) the real-time tests pass with
-            it on (s6 h12c notes).
+            but rows reach the QP on 3.5-60 % of ticks instead of 82-91 % (h12c notes). **Off by
+            default** (``mimic solve --self-collision``): shipped on, the full test suite on a quiet
+            2-core machine took 951 s instead of ~510 s and the live stack fell behind real time (the
+            sim held for want of commands: 339 states at a solver start-up, retarget and the solver
+            dropping frames and commands), so the 500 Hz tick budget does not hold it yet.
     """
 
     algo: str = "hqp-nullspace"
@@ -209,7 +209,7 @@ class SolverConfig:
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
-    self_collision: bool = True
+    self_collision: bool = False
     elbow_orientation_cost: float = 0.3
     recovery: bool = False
     range_centring_cost: float = 3.0

@@ -79,8 +79,6 @@ def test_renamed_and_new_flags():
     args = _parser(solver_arguments).parse_args(["--id", "b", "--gain", "100", "--rate", "250"])
     cfg = solver_config(args)
     assert (cfg.solver_id, cfg.gain, cfg.rate) == ("b", 100.0, 250.0)
-    # self-collision avoidance ships on; the opt-out flag turns it off
-    assert solver_config(_parser(solver_arguments).parse_args(["--no-self-collision"])).self_collision is False
     p = _parser(lambda p: (add_retarget_options(p), add_bus_args(p)))
     args = p.parse_args(["--mapping", "incremental", "--incremental-scale", "0.5", "--mode", "client"])
     cfg = retarget_config(args)
