@@ -31,7 +31,7 @@ import numpy as np
 
 #: Position mapping modes (first = default): "bounded", "paper" and "incremental" are the per-axis maps here;
 #: "reach" is :mod:`.reach` (per direction from the shoulder onto the robot's sampled reachable set). "reach"
-#: is not the default: on the 13 clips measured (docs: /work/notes/h12.md) it made every wrist + elbow pair
+#: is not the default: on the 13 clips measured (``mimic eval --no-sim``, issue 12) it made every wrist + elbow pair
 #: reachable and halved the vigorous clips' elbow errors, but the gestures' wrist errors grew (0.27 -> 0.32 cm
 #: mean), since the operator's full stretch maps to the robot's and the arm then outruns its 4 rad/s cap.
 MODES: tuple[str, ...] = ("bounded", "reach", "paper", "incremental")

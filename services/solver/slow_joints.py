@@ -1,13 +1,13 @@
 """Joints too slow for the tasks: kept out of every level and brought to rest within their own limits.
 
-Why (issue 12, h12a; ``/work/notes/s6/h12a.md``): with the G1's motor acceleration limits
-(``[model] motor_acceleration_limits = true``) the waist roll and pitch can change their speed by
-3.2 rad/s^2 and the waist yaw by 39, against 44-830 for the arm joints (the solver plans with half of
-each). In the velocity-level HQP every joint is a variable of the wrist level, so the waist is pushed
-to its acceleration bound on 92-100 % of the ticks of a gesture clip: a demand it can only follow
-tens of milliseconds late, so it swings its whole range end to end (0.5 rad of yaw on a clip where the
-operator's pelvis barely moves), both shoulders swing with it, the wrist level is infeasible on every
-tick and takes all the freedom the elbows would need (wave-right-hand elbow 0.44 -> 16.7 cm).
+Why (issue 12; measured with ``mimic eval --no-sim``, see ``services/solver/README.md``): with the G1's motor
+acceleration limits (``[model] motor_acceleration_limits = true``) the waist roll and pitch can change their
+speed by 3.2 rad/s^2 and the waist yaw by 39, against 44-830 for the arm joints (the solver plans with half of
+each). In the velocity-level HQP every joint is a variable of the wrist level, so the waist is pushed to its
+acceleration bound on 92-100 % of the ticks of a gesture clip: a demand it can only follow tens of
+milliseconds late, so it swings its whole range end to end (0.5 rad of yaw on a clip where the operator's
+pelvis barely moves), both shoulders swing with it, the wrist level is infeasible on every tick and takes all
+the freedom the elbows would need (wave-right-hand elbow 0.44 -> 16.7 cm).
 
 What this does instead: a joint whose acceleration limit is below ``threshold`` [rad/s^2] is not
 a free variable of the task levels. Its velocity for the tick is fixed first (the box collapses to

@@ -12,6 +12,7 @@ import numpy as np
 from services.solver.bench import clip_targets
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.hqp_nullspace import HqpNullspace
+from tests.support.lockstep import step_through
 
 #: Vigorous clips whose level-1 optimum often sits on joint bounds (arms swung to their limits).
 VIGOROUS = ("dash_active", "kick_normal")
@@ -40,13 +41,6 @@ def test_levels_on_joint_bounds_are_solved_in_both_paths(bvh_clips, robot17):
 
     fast.solve_problem = both
     frames = clip_targets(paths)
-    stamps = np.array([f.hdr.stamp for f in frames]) - frames[0].hdr.stamp
-    j = 0
-    for k in range(int(stamps[-1] * core.config.rate) + 1):
-        t = k / core.config.rate
-        msg = None
-        while j < len(frames) and stamps[j] <= t + 1e-9:
-            msg, j = frames[j], j + 1
-        core.step(msg, None, t)
+    step_through(core, frames)
     assert bad == []
     assert fast.widened >= 1 and ref.widened >= 1

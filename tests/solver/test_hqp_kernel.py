@@ -11,6 +11,7 @@ from services.solver.core import SolverConfig, SolverCore
 from services.solver.hqp_nullspace import HqpNullspace
 from services.solver.inequalities import Inequalities
 from services.solver.qp import DaqpBackend
+from tests.support.lockstep import step_through
 
 #: The service's per-level damping (SolverConfig.damping).
 DAMPING = SolverConfig().damping
@@ -105,14 +106,7 @@ def test_kernel_equals_the_reference_on_real_clip_ticks(bvh_clips, robot17):
         return a
 
     ref.solve_problem = both
-    stamps = np.array([f.hdr.stamp for f in frames]) - frames[0].hdr.stamp
-    j = 0
-    for k in range(int(stamps[-1] * core.config.rate) + 1):
-        t = k / core.config.rate
-        msg = None
-        while j < len(frames) and stamps[j] <= t + 1e-9:
-            msg, j = frames[j], j + 1
-        core.step(msg, None, t)
+    step_through(core, frames)
     assert len(closed) > 100
     worst = max(np.abs(a.qd - b.qd).max() for a, b in closed)
     assert worst <= 1e-9
