@@ -51,6 +51,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
     p.add_argument(
+        "--self-collision",
+        choices=("on", "off"),
+        default=None,
+        help="the solver's self-collision dampers on or off (default: SolverConfig's, as shipped)",
+    )
+    p.add_argument(
         "--wrist-orientation-level",
         type=int,
         default=None,
@@ -229,6 +235,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     if paper:
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
+    collision = getattr(args, "self_collision", None)
+    if collision is not None:
+        solver["self_collision"] = collision == "on"
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.

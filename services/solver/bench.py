@@ -27,6 +27,7 @@ import logging
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -131,9 +132,22 @@ def _percentiles(ms: np.ndarray) -> dict[str, float]:
     }
 
 
-def time_solver(robot: RobotModel, algo: str, qp: str, frames: list[TaskTargets], rate: float, warmup: int) -> dict:
-    """Run SolverCore over the frames at ``rate`` Hz; per-tick wall time of ``step``."""
-    core = SolverCore(robot, SolverConfig(algo=algo, qp=qp, rate=rate))
+def time_solver(
+    robot: RobotModel,
+    algo: str,
+    qp: str,
+    frames: list[TaskTargets],
+    rate: float,
+    warmup: int,
+    self_collision: bool | None = None,
+) -> dict:
+    """Run SolverCore over the frames at ``rate`` Hz; per-tick wall time of ``step``.
+
+    ``self_collision``: the damper rows on or off (None: ``SolverConfig``'s default, as shipped)."""
+    cfg = SolverConfig(algo=algo, qp=qp, rate=rate)
+    if self_collision is not None:
+        cfg = replace(cfg, self_collision=self_collision)
+    core = SolverCore(robot, cfg)
     stamps = np.array([f.hdr.stamp for f in frames]) - frames[0].hdr.stamp
     ticks = int(stamps[-1] * rate) + 1
     ms = np.empty(ticks)
@@ -158,6 +172,7 @@ def time_solver(robot: RobotModel, algo: str, qp: str, frames: list[TaskTargets]
         "algo": algo,
         "qp": qp if algo in USES_QP else "none",
         "dof": robot.nq,
+        "self_collision": core.collision is not None,
         "ticks": int(ms.size),
         "tick_ms": _percentiles(ms),
         # CPU time of this thread: what the tick costs without the time other processes took the core.
@@ -238,14 +253,15 @@ def run_bench(
     rate: float,
     warmup: int,
     mink_solver: str | None,
+    self_collision: bool | None = None,
 ) -> dict:
-    """All combinations; returns the JSON-ready report."""
+    """All combinations; returns the JSON-ready report (``self_collision`` as in :func:`time_solver`)."""
     load_before = os.getloadavg()[0]
     results = []
     for dof, robot in robots.items():
         for algo in algos:
             for qp in qps if algo in USES_QP else qps[:1]:
-                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup)
+                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup, self_collision)
                 ms = res["tick_ms"]
                 log.info("%-15s %-5s %2d DoF  p50 %.4f ms  p99 %.4f ms", algo, res["qp"], dof, ms["p50"], ms["p99"])
                 results.append(res)
@@ -304,6 +320,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=200, help="ticks left out of the statistics")
     parser.add_argument("--mink-solver", default="daqp", help="qpsolvers name for mink ('none' to skip)")
     parser.add_argument("--robot", default=None, help="robot profile")
+    parser.add_argument(
+        "--self-collision",
+        choices=("on", "off"),
+        default=None,
+        help="self-collision damper rows on or off (default: SolverConfig's, as shipped)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -320,7 +342,8 @@ def main(args: argparse.Namespace) -> int:
             # Each model's own motion, so that every target is reachable by that model.
             frames_by_dof[dof] = synthetic_targets(robot, args.seconds)
     mink_solver = None if args.mink_solver == "none" else args.mink_solver
-    report = run_bench(frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver)
+    collision = None if args.self_collision is None else args.self_collision == "on"
+    report = run_bench(frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, collision)
     if args.targets:
         report["targets"] = str(args.targets)
     elif args.clip:

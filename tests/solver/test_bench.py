@@ -51,3 +51,15 @@ def test_npz_targets_round_trip(tmp_path):
     assert len(loaded) == len(frames)
     np.testing.assert_allclose(loaded[3].targets["left_wrist"].p, frames[3].targets["left_wrist"].p)
     np.testing.assert_allclose(loaded[3].targets["right_elbow"].v, frames[3].targets["right_elbow"].v)
+
+
+def test_self_collision_flag_reaches_the_solver(tmp_path):
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    common = ["--seconds", "0.2", "--algos", "hqp-nullspace", "--qps", "daqp", "--dofs", "17"]
+    common += ["--warmup", "10", "--mink-solver", "none"]
+    for flag in ("on", "off"):
+        out = tmp_path / f"{flag}.json"
+        assert bench.main(parser.parse_args([*common, "--json", str(out), "--self-collision", flag])) == 0
+        (row,) = json.loads(out.read_text())["results"]
+        assert row["self_collision"] is (flag == "on")
