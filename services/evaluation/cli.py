@@ -19,6 +19,7 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
+from services.solver.cli import add_self_collision_choice, self_collision_choice
 from services.solver.core import SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
@@ -50,12 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
-    p.add_argument(
-        "--self-collision",
-        choices=("on", "off"),
-        default=None,
-        help="the solver's self-collision dampers on or off (default: SolverConfig's, as shipped)",
-    )
+    add_self_collision_choice(p)
     p.add_argument(
         "--wrist-orientation-level",
         type=int,
@@ -235,9 +231,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     if paper:
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
-    collision = getattr(args, "self_collision", None)
+    collision = self_collision_choice(args)
     if collision is not None:
-        solver["self_collision"] = collision == "on"
+        solver["self_collision"] = collision
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from services.solver.cli import add_self_collision_choice, self_collision_choice
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.registry import ALGORITHMS, USES_QP
 from shared.messages import Header, Target, TaskTargets
@@ -320,12 +321,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=200, help="ticks left out of the statistics")
     parser.add_argument("--mink-solver", default="daqp", help="qpsolvers name for mink ('none' to skip)")
     parser.add_argument("--robot", default=None, help="robot profile")
-    parser.add_argument(
-        "--self-collision",
-        choices=("on", "off"),
-        default=None,
-        help="self-collision damper rows on or off (default: SolverConfig's, as shipped)",
-    )
+    add_self_collision_choice(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -342,7 +338,7 @@ def main(args: argparse.Namespace) -> int:
             # Each model's own motion, so that every target is reachable by that model.
             frames_by_dof[dof] = synthetic_targets(robot, args.seconds)
     mink_solver = None if args.mink_solver == "none" else args.mink_solver
-    collision = None if args.self_collision is None else args.self_collision == "on"
+    collision = self_collision_choice(args)
     report = run_bench(frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, collision)
     if args.targets:
         report["targets"] = str(args.targets)

@@ -29,6 +29,23 @@ FLAGS = {
 }
 
 
+def add_self_collision_choice(parser: argparse.ArgumentParser) -> None:
+    """``--self-collision on|off`` for the commands that build their own solver (``mimic eval``, ``mimic bench
+    solvers``), so an on/off comparison runs in one tree; read it back with :func:`self_collision_choice`."""
+    parser.add_argument(
+        "--self-collision",
+        choices=("on", "off"),
+        default=None,
+        help="the solver's self-collision damper rows on or off (default: SolverConfig's, as shipped)",
+    )
+
+
+def self_collision_choice(args: argparse.Namespace) -> bool | None:
+    """``--self-collision`` as a ``SolverConfig.self_collision`` value (None: not given, keep the default)."""
+    choice = getattr(args, "self_collision", None)
+    return None if choice is None else choice == "on"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``mimic solve``."""
     g = parser.add_argument_group("solver (SolverConfig)")

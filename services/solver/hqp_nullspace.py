@@ -221,12 +221,13 @@ class HqpNullspace(CascadeQp):
         eps0 = self.level_eps(k)
         G, gl, gu = rows
         attempts = ((eps0, self.refine, 0.0), (max(RETRY_EPS, eps0), True, 0.0))
+        MtM = M.T @ M
+        f = -(M.T @ c)
         for eps, refine, widen in (*attempts, *((e, r, RETRY_WIDEN) for e, r, _ in attempts)):
             lo_w, hi_w = (lo - widen, hi + widen) if widen else (lo, hi)
             gl_w, gu_w = (gl - widen, gu + widen) if widen and G is not None else (gl, gu)
-            H = M.T @ M
+            H = MtM.copy()
             H.flat[:: H.shape[0] + 1] += eps
-            f = -(M.T @ c)
             if G is not None:
                 r = self.backend.solve(H, f, G=G, gl=gl_w, gu=gu_w, key=f"ns{k}g")
             elif Z is None:
