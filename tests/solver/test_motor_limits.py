@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.evaluation.runner import load_and_retarget, run_algorithm
+from services.evaluation.runner import run_algorithm
 from services.solver.core import (
     MOTOR_LIMITS_RESERVE,
     MOTOR_LIMITS_TASK_ACCELERATION,
@@ -19,9 +19,9 @@ from services.solver.core import (
     SolverCore,
 )
 from services.solver.slow_joints import ACCEL_SHARE, SlowJoints
-from shared.paths import mocap_dir
 from shared.robot.pinocchio_model import build_robot_model
 from tests.solver.test_core import targets_from_q
+from tests.support.lockstep import clip_targets_until
 from tests.support.profiles import g1_with_motor_acceleration_limits
 
 DT = 0.002
@@ -105,11 +105,7 @@ def test_wave_right_hand_elbows_with_motor_limits(motor_robot):
     """The gesture clip hacc measured at elbow 0.44 -> 17.7 cm with the motor limits: the waist out of the tasks
     and the level-1 reserve bring it back to a few cm (the old solver: 15+ cm over these 4 s, level 1 met on 0 % of
     the ticks, the waist swung 0.5 rad)."""
-    path = mocap_dir() / "bvh" / WAVE
-    if not path.exists():
-        pytest.skip(f"clip {path} not in the data folder")
-    _clip, targets = load_and_retarget(path, motor_robot)
-    targets = [t for t in targets if t.hdr.stamp <= UNTIL]
+    targets = clip_targets_until(WAVE, motor_robot, UNTIL)
     err = {}
     for name, solver in {
         "shipped": {},

@@ -6,13 +6,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from services.evaluation.runner import load_and_retarget, run_algorithm
+from services.evaluation.runner import run_algorithm
 from services.solver.core import SolverConfig, SolverCore
 from shared.messages import Header, Target, TaskTargets
-from shared.paths import mocap_dir
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
 from shared.targets import ELBOWS, TARGET_NAMES
+from tests.support.lockstep import clip_targets_until
 
 DT = 0.002
 #: The clip and the window of the known lock-up (issue 12: left shoulder roll and yaw at their stops at ~7 s).
@@ -35,11 +35,7 @@ def _longest(bad: np.ndarray, dt: float) -> float:
 
 def _wave_runs(robot, variants: dict[str, dict]) -> dict[str, tuple[float, float, float]]:
     """variant -> (longest run [s] of the left elbow > 10 cm off, its max [cm], left wrist p99 [cm])."""
-    path = mocap_dir() / "bvh" / WAVE
-    if not path.exists():
-        pytest.skip(f"clip {path} not in the data folder")
-    _clip, targets = load_and_retarget(path, robot)
-    targets = [t for t in targets if t.hdr.stamp <= UNTIL]
+    targets = clip_targets_until(WAVE, robot, UNTIL)
     out = {}
     for name, solver in variants.items():
         tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", sim=False, solver=solver, collisions=False)

@@ -1,13 +1,16 @@
-"""Drive a SolverCore through recorded targets in lock-step (no bus, no wall clock)."""
+"""Recorded targets from a real clip, and a SolverCore driven through them in lock-step (no bus, no wall clock)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 import numpy as np
+import pytest
 
+from services.evaluation.runner import load_and_retarget
 from services.solver.core import SolverCore
 from shared.messages import TaskTargets
+from shared.paths import mocap_dir
 
 
 def step_through(core: SolverCore, frames: Sequence[TaskTargets]) -> int:
@@ -23,3 +26,13 @@ def step_through(core: SolverCore, frames: Sequence[TaskTargets]) -> int:
             msg, j = frames[j], j + 1
         core.step(msg, None, t)
     return ticks
+
+
+def clip_targets_until(name: str, robot, until: float) -> list[TaskTargets]:
+    """The eval's retargeted targets of ``bvh/<name>`` for ``robot``, the first ``until`` [s] of the clip; skips the
+    test when the clip is not in the data folder."""
+    path = mocap_dir() / "bvh" / name
+    if not path.exists():
+        pytest.skip(f"clip {path} not in the data folder")
+    _clip, targets = load_and_retarget(path, robot)
+    return [t for t in targets if t.hdr.stamp <= until]
