@@ -18,7 +18,13 @@ and the samples it never received (``gaps``: numbers skipped by its publishers, 
 lost inside Zenoh), per input stream; ``drops_total`` sums them over the frame's path
 (frames, targets, commands: not the solver's newest-wins ``sim_state`` feedback).
 ``cpu_ms_per_frame`` is each process's CPU time over the measured frames per frame sent: where
-the time goes, whatever else the machine runs (latency and drops depend on that).
+the time goes, whatever else the machine runs (latency and drops depend on that);
+``cpu_ms_per_frame_by_thread`` splits it into Zenoh's runtime threads and the interpreter's, and
+``idle_cpu_ms_per_s`` is what each process burns in the second before the first frame.
+
+``--noop`` measures the floor under all of this: no-work stand-ins (:mod:`services.evaluation.relay`)
+replace retarget, solver and sim, each still its own process decoding the real input and
+publishing the real output type on the real keys, so what remains is the bus and the processes.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import sys
 import tempfile
 import threading
 import time
@@ -34,7 +41,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from services.evaluation.relay import DELIVERIES
 from services.launcher.local_stack import LocalStack
+from services.launcher.stack import ROUTER_SERVICE
 from shared.bus import NumberedPublisher, StatusCounters, free_port, gap_watch
 from shared.messages import ServiceStatus, peek_header
 from shared.report import emit_json
@@ -46,6 +55,8 @@ HOPS = ("retarget", "solver", "sim")
 PATH = ("frames", "targets", "commands")
 #: ServiceStatus period of the bench's services [s]: the last one must come after the last frame.
 STATUS_PERIOD_S = 0.25
+#: Seconds between the services being up and the first frame; their CPU time then is ``idle_cpu_ms_per_s``.
+IDLE_WINDOW_S = 1.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,6 +70,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--sim-args", default="", help="extra sim flags (after the bench's '--state-on-command')")
     p.add_argument("--warmup", type=float, default=1.0, help="seconds of frames before measuring")
+    p.add_argument(
+        "--noop",
+        action="store_true",
+        help="the bus floor: no-work stand-ins (services/evaluation/relay.py) instead of retarget, solver, sim",
+    )
+    p.add_argument(
+        "--delivery",
+        choices=DELIVERIES,
+        default="shipped",
+        help="--noop: how a sample reaches each stand-in's worker (shipped: the services' wiring)",
+    )
+    p.add_argument("--relay-args", default="", help="--noop: extra stand-in flags, e.g. '--depth 4'")
 
 
 class _Arrivals:
@@ -84,13 +107,43 @@ def _frames(n_frames: int, rate: float):
     return clip, idx
 
 
+def _stat_cpu(path: Path) -> tuple[str, float] | None:
+    """(name, CPU time [s] user + system) from a /proc ``stat`` file of a process or thread; None if unreadable."""
+    try:
+        name, rest = path.read_text().split("(", 1)[1].rsplit(")", 1)
+        fields = rest.split()
+        return name, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def cpu_seconds(pid: int) -> float | None:
     """CPU time [s] (user + system) a process has used so far; None where /proc cannot say."""
+    got = _stat_cpu(Path(f"/proc/{pid}/stat"))
+    return None if got is None else got[1]
+
+
+def thread_cpu_seconds(pid: int) -> dict[str, float]:
+    """CPU time [s] a process's threads have used so far, summed per thread name with its ``-N`` suffix cut.
+
+    Zenoh's runtimes name their threads (``rx-0``, ``tx-1``, ``app-0``, ``net-0``, ``acc-0``: receiving,
+    sending, ...); every Python thread has the process's name (``python``), so the split tells the bus
+    runtime's share from the interpreter's. Python callbacks run on Zenoh's ``rx`` threads and count there.
+    Threads that already ended are missing; empty where /proc cannot say.
+    """
+    out: dict[str, float] = {}
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (OSError, IndexError):
-        return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        got = _stat_cpu(Path(f"/proc/{pid}/task/{tid}/stat"))
+        if got is None:
+            continue
+        stem, _, suffix = got[0].rpartition("-")
+        group = stem if stem and suffix.isdigit() else got[0]
+        out[group] = out.get(group, 0.0) + got[1]
+    return out
 
 
 def solver_rate(input_rate: float) -> float:
@@ -106,7 +159,21 @@ def solver_rate(input_rate: float) -> float:
     return min(float(input_rate), SolverConfig().rate)
 
 
+def start_relays(stack: LocalStack, rate: float, delivery: str, extra: str = "", timeout: float = 90.0) -> None:
+    """The ``--noop`` stand-ins (:mod:`services.evaluation.relay`) in place of retarget, solver and sim.
+
+    Same router, session, environment and status period as the services (their ServiceRunner names
+    too), so everything the bench reads about them is read the same way.
+    """
+    for h in HOPS:
+        argv = [sys.executable, "-m", "services.evaluation.relay", h, "--delivery", delivery]
+        argv += ["--rate", f"{solver_rate(rate):g}", "--status-period", str(STATUS_PERIOD_S), *extra.split()]
+        stack.start(h, argv=argv, env=stack.command(h)[1])
+    stack.wait_alive(HOPS, timeout)
+
+
 def run(args: argparse.Namespace) -> dict:
+    noop = bool(getattr(args, "noop", False))
     port = args.port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     extra = {
@@ -145,8 +212,15 @@ def run(args: argparse.Namespace) -> dict:
                 lambda s: statuses.__setitem__(str(s.key_expr), ServiceStatus.decode(s.payload.to_bytes())),
             ),
         ]
-        stack.start_all(HOPS, extra, timeout=90)
-        time.sleep(0.5)
+        if noop:
+            start_relays(stack, args.rate, args.delivery, getattr(args, "relay_args", ""))
+        else:
+            stack.start_all(HOPS, extra, timeout=90)
+        pids = {**{h: stack.pid(h) for h in HOPS}, "router": stack.pid(ROUTER_SERVICE), "bench": os.getpid()}
+        # Before any frame: what each process burns on its own (Zenoh runtime, status, idle ticks).
+        idle0 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
+        time.sleep(IDLE_WINDOW_S)
+        idle1 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
         pub = NumberedPublisher(z, keys.mocap_frame)
         t0_pub: dict[int, int] = {}
         period = 1.0 / args.rate
@@ -154,11 +228,12 @@ def run(args: argparse.Namespace) -> dict:
         late = 0
         frames = {i: clip.frame(int(i), seq=0) for i in np.unique(idx)}
         first = int(args.warmup * args.rate)
-        pids = {**{h: stack.pid(h) for h in HOPS}, "bench": os.getpid()}
         cpu0: dict[str, float | None] = {}
+        threads0: dict[str, dict[str, float]] = {}
         for k in range(n_total):
             if k == first:  # CPU over the measured frames only (start-up and warm-up left out)
                 cpu0 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
+                threads0 = {h: thread_cpu_seconds(p) for h, p in pids.items() if p}
             target = start + k * period
             now = time.monotonic()
             # Sleep, never spin: a busy-waiting publisher takes a whole core from the services.
@@ -174,6 +249,7 @@ def run(args: argparse.Namespace) -> dict:
             pub.put(frame.encode())
         elapsed = time.monotonic() - start
         cpu1 = {h: cpu_seconds(p) if p else None for h, p in pids.items()}
+        threads1 = {h: thread_cpu_seconds(p) for h, p in pids.items() if p}
         time.sleep(1.5 + 2 * STATUS_PERIOD_S)
         pub.undeclare()
         for s in subs:
@@ -186,7 +262,9 @@ def run(args: argparse.Namespace) -> dict:
         "achieved_rate_hz": n_total / elapsed,
         "publisher_late_frames": late,
         "sent": len(measured),
-        "algo": args.algo,
+        "algo": None if noop else args.algo,
+        "noop": noop,
+        "delivery": args.delivery if noop else None,
     }
     lat_ms: dict[str, list[float]] = {}
     dropped: dict[str, int] = {}
@@ -225,6 +303,17 @@ def run(args: argparse.Namespace) -> dict:
     n_measured = max(1, len(measured))
     result["cpu_ms_per_frame"] = {
         h: None if cpu0.get(h) is None or cpu1[h] is None else (cpu1[h] - cpu0[h]) * 1e3 / n_measured for h in pids
+    }
+    # The same per thread group (see thread_cpu_seconds): Zenoh's runtime against the interpreter.
+    result["cpu_ms_per_frame_by_thread"] = {
+        h: {
+            g: round((t1 - threads0.get(h, {}).get(g, 0.0)) * 1e3 / n_measured, 4)
+            for g, t1 in sorted(threads1[h].items())
+        }
+        for h in threads1
+    }
+    result["idle_cpu_ms_per_s"] = {
+        h: None if idle0[h] is None or idle1[h] is None else (idle1[h] - idle0[h]) * 1e3 / IDLE_WINDOW_S for h in pids
     }
     result["service_status"] = {
         k: {"counts": v.counts, "rejects": v.rejects, "extra": v.extra} for k, v in statuses.items()
