@@ -72,9 +72,13 @@ class QuinticSmoother:
         dt: nominal tick [s]; the horizon is ``horizon_ticks * dt``.
         horizon_ticks: segment length T in ticks (>= 2; larger = smoother, slower to react).
         limits: position, velocity and acceleration limits of the output (None: unlimited).
+        compiled: check the limits with the numba kernel (``quintic_kernel``, compiled when built); False runs
+            the numpy rows, the readable reference the kernel is tested against. Both give the same bits.
     """
 
-    def __init__(self, n: int, dt: float, horizon_ticks: int = 4, limits: JointBounds | None = None):
+    def __init__(
+        self, n: int, dt: float, horizon_ticks: int = 4, limits: JointBounds | None = None, compiled: bool = True
+    ):
         if horizon_ticks < 2:
             raise ValueError(f"horizon_ticks must be >= 2, got {horizon_ticks}")
         self.dt = dt
@@ -93,10 +97,18 @@ class QuinticSmoother:
         self._limits_for: float | None = None  # the step s the s-dependent rows of _lo, _hi were set for
         self._dist = np.empty((2, n))  # distances to the stops below and above
         self._vmax_rows = False  # the velocity rows of _lo, _hi hold +-vmax (no braking bound tighter)
+        self._bad = np.zeros(n, dtype=bool)  # joints out of their limits at the last check (compiled path)
+        self._kernel = None
         if limits is not None:
             self._lo[0], self._hi[0] = limits.lower, limits.upper
             self._hi[2] = limits.amax
             np.negative(limits.amax, out=self._lo[2])
+            if compiled:
+                # Imported here: only a smoother with limits loads numba, and it compiles now, not on a tick.
+                from services.solver import quintic_kernel
+
+                quintic_kernel.warm_up()
+                self._kernel = quintic_kernel
 
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
@@ -166,6 +178,27 @@ class QuinticSmoother:
         """Take the next state nxt (3, n) or the nearest one along the segment-end line that respects the limits."""
         lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
+        if self._kernel is not None:
+            bad = self._bad
+            if not self._kernel.limit_rows(
+                y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim._two_over_a, BRAKE_DECEL, lo, hi, bad
+            ):
+                S[:3] = nxt
+                return 0
+            self._limits_for = None  # the kernel wrote the rows the numpy path caches
+            self._vmax_rows = False
+        else:
+            bad = self._limit_rows(s)
+            if not bad.any():
+                S[:3] = nxt
+                return 0
+        return self._line_search(nxt, bad, s)
+
+    def _limit_rows(self, s: float) -> np.ndarray:
+        """The numpy reference of ``quintic_kernel.limit_rows``: y's rows 3-5 and their bounds at step s [s];
+        returns the (n,) mask of joints with a row out of its bounds."""
+        lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
+        p0, v0 = S[0], S[1]
         # Quantities limited at the next state, all affine in the segment end (rows: p, v, a, dp, dv,
         # v + a s / 2); nxt was computed into y[:3] (``_advance``).
         np.subtract(y[0], p0, out=y[3])
@@ -195,10 +228,13 @@ class QuinticSmoother:
             np.minimum(above, lim.vmax, out=hi[1])
             lo[5], hi[5] = lo[1], hi[1]
             self._vmax_rows = False
-        bad = ((y < lo) | (y > hi)).any(axis=0)
-        if not bad.any():
-            S[:3] = nxt
-            return 0
+        return ((y < lo) | (y > hi)).any(axis=0)
+
+    def _line_search(self, nxt: np.ndarray, bad: np.ndarray, s: float) -> int:
+        """The next state nxt (3, n) with the segment end of each bad joint (n,) mask moved back along the line
+        until its limits hold (``_limit_rows`` filled y's rows and their bounds); returns the joints clamped."""
+        S, y, lo, hi = self._S, self._Y, self._lo, self._hi
+        p0, v0 = S[0], S[1]
         # Per bad joint: lambda in [0, 1] on the line from the keep-velocity end to the desired end.
         K = self._K
         idx = np.flatnonzero(bad)
