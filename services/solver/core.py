@@ -275,7 +275,7 @@ class SolverCore:
         self.limits = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax)
         fv, fa, m = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION, RAW_POSITION_MARGIN) if cfg.smoothing else (1, 1, 0)
         m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
-        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
+        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax, compiled=True)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
         a_task = cfg.task_acceleration

@@ -72,7 +72,7 @@ class QuinticSmoother:
         dt: nominal tick [s]; the horizon is ``horizon_ticks * dt``.
         horizon_ticks: segment length T in ticks (>= 2; larger = smoother, slower to react).
         limits: position, velocity and acceleration limits of the output (None: unlimited).
-        compiled: check the limits with the numba kernel (``quintic_kernel``, compiled when built); False runs
+        compiled: check the limits with the numba kernel (``limits_kernel``, compiled when built); False runs
             the numpy rows, the readable reference the kernel is tested against. Both give the same bits.
     """
 
@@ -105,10 +105,10 @@ class QuinticSmoother:
             np.negative(limits.amax, out=self._lo[2])
             if compiled:
                 # Imported here: only a smoother with limits loads numba, and it compiles now, not on a tick.
-                from services.solver import quintic_kernel
+                from services.solver import limits_kernel
 
-                quintic_kernel.warm_up()
-                self._kernel = quintic_kernel
+                limits_kernel.warm_up()
+                self._kernel = limits_kernel
 
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
@@ -180,7 +180,7 @@ class QuinticSmoother:
         p0, v0 = S[0], S[1]
         if self._kernel is not None:
             bad = self._bad
-            if not self._kernel.limit_rows(
+            if not self._kernel.smoother_rows(
                 y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim._two_over_a, BRAKE_DECEL, lo, hi, bad
             ):
                 S[:3] = nxt
@@ -188,14 +188,14 @@ class QuinticSmoother:
             self._limits_for = None  # the kernel wrote the rows the numpy path caches
             self._vmax_rows = False
         else:
-            bad = self._limit_rows(s)
+            bad = self._smoother_rows(s)
             if not bad.any():
                 S[:3] = nxt
                 return 0
         return self._line_search(nxt, bad, s)
 
-    def _limit_rows(self, s: float) -> np.ndarray:
-        """The numpy reference of ``quintic_kernel.limit_rows``: y's rows 3-5 and their bounds at step s [s];
+    def _smoother_rows(self, s: float) -> np.ndarray:
+        """The numpy reference of ``limits_kernel.smoother_rows``: y's rows 3-5 and their bounds at step s [s];
         returns the (n,) mask of joints with a row out of its bounds."""
         lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
@@ -232,7 +232,8 @@ class QuinticSmoother:
 
     def _line_search(self, nxt: np.ndarray, bad: np.ndarray, s: float) -> int:
         """The next state nxt (3, n) with the segment end of each bad joint (n,) mask moved back along the line
-        until its limits hold (``_limit_rows`` filled y's rows and their bounds); returns the joints clamped."""
+        until its limits hold (y's rows and their bounds filled by ``_smoother_rows`` or the kernel); returns the
+        joints clamped."""
         S, y, lo, hi = self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
         # Per bad joint: lambda in [0, 1] on the line from the keep-velocity end to the desired end.
