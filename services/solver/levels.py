@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 
 import numpy as np
 
@@ -64,5 +65,6 @@ class LevelStack:
         return self.A, self.b
 
 
-def _key(levels: Sequence[Sequence[Task]]) -> tuple[tuple[int, ...], ...]:
-    return tuple(tuple(id(t) for t in tasks) for tasks in levels)
+def _key(levels: Sequence[Sequence[Task]]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The task objects' ids in order and the tasks per level (``map``: no Python-level loop, it runs every tick)."""
+    return tuple(map(id, chain.from_iterable(levels))), tuple(map(len, levels))

@@ -91,6 +91,10 @@ class QuinticSmoother:
         self._C = _coefficient_map(self.T)
         self._s = -1.0
         self._K = np.zeros((3, 5))
+        #: (3, 6) p, v, a rows of the monomials s^0..s^5 at the last step (``propagator``; constants set here)
+        self._P = np.zeros((3, 6))
+        self._P[0, 0] = self._P[1, 1] = self._P[2, 2] = 1.0
+        self._P[2, 2] = 2.0
         self._Y = np.zeros((6, n))  # limited quantities of the next state (see _limit)
         self._lo = np.zeros((6, n))
         self._hi = np.zeros((6, n))
@@ -113,14 +117,13 @@ class QuinticSmoother:
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
         if s != self._s:
+            # Written into a kept buffer, entry by entry: a fresh np.array of nested lists costs several times
+            # more, and the step changes every tick (the real time between ticks).
             s2, s3 = s * s, s * s * s
-            P = np.array(
-                [
-                    [1.0, s, s2, s3, s3 * s, s3 * s2],
-                    [0.0, 1.0, 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s],
-                    [0.0, 0.0, 2.0, 6.0 * s, 12.0 * s2, 20.0 * s3],
-                ]
-            )
+            P = self._P
+            P[0, 1:] = s, s2, s3, s3 * s, s3 * s2
+            P[1, 2:] = 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s
+            P[2, 3:] = 6.0 * s, 12.0 * s2, 20.0 * s3
             np.matmul(P, self._C, out=self._K)
             self._s = s
         return self._K
