@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
 	# Compile the solver's numba kernels into their cache now (~10 s of CPU), not in the first solver started.
 	$(BIN)/python -m services.solver.hqp_kernel
-	$(BIN)/python -m services.solver.limits_kernel
+	$(BIN)/python -m services.solver.tick_kernel
 	touch $(STAMP)
 
 demo: setup

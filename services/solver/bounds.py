@@ -38,7 +38,7 @@ class JointBounds:
         lower, upper: (n,) position limits [rad].
         vmax: (n,) velocity limits [rad/s], > 0.
         amax: (n,) acceleration limits [rad/s^2], > 0.
-        compiled: :meth:`compute` in the numba kernel (``limits_kernel.velocity_box``, compiled when built: the
+        compiled: :meth:`compute` in the numba kernel (``tick_kernel.velocity_box``, compiled when built: the
             solver's per-tick box); False (default, no numba loaded) runs the numpy steps, the readable reference
             the kernel is tested against. Both give the same bits.
     """
@@ -71,10 +71,10 @@ class JointBounds:
         self._free_for: tuple[float, float] | None = None
         self._kernel = None
         if compiled:
-            from services.solver import limits_kernel
+            from services.solver import tick_kernel
 
-            limits_kernel.warm_up()
-            self._kernel = limits_kernel
+            tick_kernel.warm_up()
+            self._kernel = tick_kernel
 
     def compute(
         self,

@@ -32,9 +32,11 @@ class FrameRows:
     Args:
         tasks: the batchable tasks (``batchable``), each with the first row it owns in the stack.
         n: number of joints.
+        compiled: the arithmetic in the numba kernel (``tick_kernel.frame_rows``, compiled when built); False
+            runs the numpy steps, the readable reference the kernel is tested against. Both give the same bits.
     """
 
-    def __init__(self, tasks: Sequence[tuple[Task, int]], n: int):
+    def __init__(self, tasks: Sequence[tuple[Task, int]], n: int, compiled: bool = True):
         self.tasks = [t for t, _ in tasks]
         self.frames = list(dict.fromkeys(t.frame for t in self.tasks))
         slot = {f: i for i, f in enumerate(self.frames)}
@@ -62,6 +64,12 @@ class FrameRows:
         self._J = np.empty((6 * F, n))  # every frame's (6, n) Jacobian, stacked
         self._p = np.empty(3 * F)  # every frame's position [m], stacked
         self._e = np.empty(r)  # the error rows
+        self._kernel = None
+        if compiled and self.tasks:
+            from services.solver import tick_kernel
+
+            tick_kernel.warm_up()
+            self._kernel = tick_kernel
 
     def fill(self, configuration: Configuration, A_all: np.ndarray, b_all: np.ndarray) -> None:
         """Write every task's ``A = W J`` and ``b = W (v_ff + gain e)`` into its rows of A_all and b_all."""
@@ -72,10 +80,18 @@ class FrameRows:
         np.concatenate([p for p, _ in poses], out=self._p)
         tasks = self.tasks
         e = self._e
-        e[self._pos_rows] = np.concatenate([t.p_target for t in tasks]) - self._p[self._pos_src]
         for t, r, f in self._poses:
             e[r : r + 3] = pin.log3(t.R_target @ poses[f][1].T)
+        p_target = np.concatenate([t.p_target for t in tasks])
         cost = np.concatenate([t.cost for t in tasks])
+        if self._kernel is not None:
+            self._kernel.frame_rows(
+                e, p_target, self._p, self._pos_rows, self._pos_src, np.array([t.gain for t in tasks]),
+                self._row_task, np.concatenate([t.feedforward() for t in tasks]), cost, self._J, self._src, self.dst,
+                A_all, b_all,
+            )  # fmt: skip
+            return
+        e[self._pos_rows] = p_target - self._p[self._pos_src]
         # The tasks' own steps (``Task._fill_b``): the same operations in the same order, the same bits.
         b = e * np.array([t.gain for t in tasks])[self._row_task]
         b += np.concatenate([t.feedforward() for t in tasks])

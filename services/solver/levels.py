@@ -17,9 +17,10 @@ class LevelStack:
     Args:
         levels: tasks by priority, highest first.
         n: number of joints.
+        compiled: the position and pose tasks' arithmetic in the numba kernel (``FrameRows``).
     """
 
-    def __init__(self, levels: Sequence[Sequence[Task]], n: int):
+    def __init__(self, levels: Sequence[Sequence[Task]], n: int, compiled: bool = True):
         self.levels = [list(tasks) for tasks in levels]
         self.n = n
         self.key = _key(levels)
@@ -51,7 +52,7 @@ class LevelStack:
             self.A.append(A)
             self.b.append(b)
         #: the position and pose tasks' rows, filled together
-        self.frame_rows = FrameRows(batched, n)
+        self.frame_rows = FrameRows(batched, n, compiled)
 
     def holds(self, levels: Sequence[Sequence[Task]], n: int) -> bool:
         """True when this stack was built for exactly these task objects and n joints."""

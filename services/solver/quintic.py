@@ -72,7 +72,7 @@ class QuinticSmoother:
         dt: nominal tick [s]; the horizon is ``horizon_ticks * dt``.
         horizon_ticks: segment length T in ticks (>= 2; larger = smoother, slower to react).
         limits: position, velocity and acceleration limits of the output (None: unlimited).
-        compiled: check the limits with the numba kernel (``limits_kernel``, compiled when built); False runs
+        compiled: check the limits with the numba kernel (``tick_kernel``, compiled when built); False runs
             the numpy rows, the readable reference the kernel is tested against. Both give the same bits.
     """
 
@@ -109,10 +109,10 @@ class QuinticSmoother:
             np.negative(limits.amax, out=self._lo[2])
             if compiled:
                 # Imported here: only a smoother with limits loads numba, and it compiles now, not on a tick.
-                from services.solver import limits_kernel
+                from services.solver import tick_kernel
 
-                limits_kernel.warm_up()
-                self._kernel = limits_kernel
+                tick_kernel.warm_up()
+                self._kernel = tick_kernel
 
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
@@ -198,7 +198,7 @@ class QuinticSmoother:
         return self._line_search(nxt, bad, s)
 
     def _smoother_rows(self, s: float) -> np.ndarray:
-        """The numpy reference of ``limits_kernel.smoother_rows``: y's rows 3-5 and their bounds at step s [s];
+        """The numpy reference of ``tick_kernel.smoother_rows``: y's rows 3-5 and their bounds at step s [s];
         returns the (n,) mask of joints with a row out of its bounds."""
         lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]

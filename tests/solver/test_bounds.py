@@ -76,7 +76,7 @@ def test_bad_limits_are_rejected(robot, bounds):
 
 
 def test_compiled_box_gives_the_numpy_steps_bits():
-    """``JointBounds(compiled=True)`` (``limits_kernel.velocity_box``) against the numpy steps, bit for bit: joints
+    """``JointBounds(compiled=True)`` (``tick_kernel.velocity_box``) against the numpy steps, bit for bit: joints
     far from their stops (the numpy path skips the braking bound), near and past them, fast and at rest, random
     steps, with and without the measured-joint window (whose edges may also be crossed)."""
     rng = np.random.default_rng(11)

@@ -34,15 +34,18 @@ def _aim_everywhere(core: SolverCore, conf: Configuration, rng: np.random.Genera
         task.gain = rng.uniform(1.0, 200.0)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("orientation_level", [1, 2, 3])
-def test_batched_rows_equal_each_tasks_own_rows(robot, orientation_level):
+def test_batched_rows_equal_each_tasks_own_rows(robot, orientation_level, compiled):
     """Every level layout the solver builds (wrist poses on 1, 2 or 3; elbow poses on): the stack's rows are
-    exactly those of the per-task path, at random configurations and targets."""
+    exactly those of the per-task path, at random configurations and targets, with the arithmetic compiled
+    (``tick_kernel.frame_rows``) and in numpy."""
     core = SolverCore(robot, SolverConfig(wrist_orientation_level=orientation_level))
     conf = Configuration(robot)
     rng = np.random.default_rng(orientation_level)
     for levels in (core._levels_position_elbows, core._levels_elbow_poses):
-        stack = LevelStack(levels, robot.nq)
+        stack = LevelStack(levels, robot.nq, compiled)
+        assert (stack.frame_rows._kernel is not None) == compiled
         # Every wrist and elbow task goes through the batch (none is left to the per-task path).
         assert len(stack.frame_rows.tasks) == sum(batchable(t) for lv in levels for t in lv) >= 4
         for q in robot.random_configurations(10, rng):

@@ -149,7 +149,7 @@ def test_limiter_brakes_before_a_stop(limits):
 
 
 def test_compiled_limit_check_gives_the_numpy_paths_bits():
-    """The compiled limit check (``limits_kernel``) against the numpy rows it replaces, on violent raw input at
+    """The compiled limit check (``tick_kernel``) against the numpy rows it replaces, on violent raw input at
     random step lengths and joints of different limits: the same state, bit for bit, every step, through ticks
     far from the stops, braking before them and with segment ends moved by the line search."""
     n = 6

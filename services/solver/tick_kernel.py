@@ -1,15 +1,17 @@
-"""The joint-limit arithmetic of a tick compiled with numba: the solver's velocity box and the smoother's check.
+"""The elementwise arithmetic of a solver tick compiled with numba: the task rows, the box, the smoother's check.
 
-Why compiled: ``JointBounds.compute`` (the box every level is solved in) and the smoother's limit check
-(``QuinticSmoother``: six limited quantities of the next state against their bounds) are about 15 and 25
-numpy calls on 17-element vectors a tick: a microsecond of call overhead each for a few hundred flops.
-Here one loop over the joints does each. Every element goes through the numpy path's operations in the
-same order, so the results are the same bits; the numpy paths stay the readable references and the tests
-hold these kernels to them (``tests/solver/test_bounds.py``, ``tests/solver/test_quintic.py``). A tick with
+Why compiled: the frame tasks' rows (``FrameRows``: ``A = W J``, ``b = W (v_ff + gain e)`` of every wrist and
+elbow task), ``JointBounds.compute`` (the box every level is solved in) and the smoother's limit check
+(``QuinticSmoother``: six limited quantities of the next state against their bounds) are about 10, 15 and 25
+numpy calls on vectors of 17 to 40 elements a tick: a microsecond of call overhead each for a few hundred
+flops. Here one loop does each. Every element goes through the numpy path's operations in the same order,
+so the results are the same bits; the numpy paths stay the readable references and the tests hold these
+kernels to them (``tests/solver/test_frame_rows.py``, ``test_bounds.py``, ``test_quintic.py``). A tick with
 a joint out of the smoother's limits still takes the numpy line search (``QuinticSmoother._line_search``).
 
-Far from both stops the braking bound exceeds vmax, so the numpy paths skip it there (``braking_free``);
-here it is always computed: intersected before the clamp to +-vmax, a looser bound changes no bit.
+In the box and the smoother's check, far from both stops the braking bound exceeds vmax, so the numpy paths
+skip it there (``braking_free``); here it is always computed: intersected before the clamp to +-vmax, a
+looser bound changes no bit.
 
 Compilation: ``cache=True`` as ``hqp_kernel``; :func:`warm_up` compiles or loads it before the first tick.
 """
@@ -107,15 +109,39 @@ def _intersect(lb: float, ub: float, lo: float, hi: float) -> tuple[float, float
     return min(max(lb, lo), hi), min(max(ub, lo), hi)
 
 
+@njit(cache=True)
+def frame_rows(e, p_target, p, pos_rows, pos_src, gain, row_task, ff, cost, J, src, dst, A_all, b_all):
+    """``FrameRows.fill``'s arithmetic: the position errors into e, then every row's A and b into the stack.
+
+    Args:
+        e: (R,) error rows, the orientation ones given (``log3``), the position ones written here:
+            ``e[pos_rows] = p_target - p[pos_src]`` with p_target (P,) [m] and p (3F,) the frames' positions [m].
+        gain: (T,) per task [1/s], row_task (R,) each row's task. ff, cost: (R,) feed-forward and weight per row.
+        J: (6F, n) the frames' Jacobians stacked; src (R,) the row of J each row scales, dst (R,) its stack row.
+        A_all, b_all: (rows, n) and (rows,) the stack, rows dst written.
+    """
+    for i in range(pos_rows.shape[0]):
+        e[pos_rows[i]] = p_target[i] - p[pos_src[i]]
+    for r in range(e.shape[0]):
+        c = cost[r]
+        d = dst[r]
+        b_all[d] = (e[r] * gain[row_task[r]] + ff[r]) * c
+        for j in range(J.shape[1]):
+            A_all[d, j] = c * J[src[r], j]
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) the kernel on a tiny problem, once a process: before any real-time tick
-    (``QuinticSmoother`` and ``JointBounds`` do when built compiled)."""
+    (``FrameRows``, ``QuinticSmoother`` and ``JointBounds`` do when built compiled)."""
     global _warm
     if _warm:
         return
     one = np.ones(1)
     smoother_rows(np.zeros((6, 1)), np.zeros(1), np.zeros(1), 0.002, -one, one, one, one, 2.0 * one, 0.8,
                   np.zeros((6, 1)), np.zeros((6, 1)), np.zeros(1, dtype=np.bool_))  # fmt: skip
+    i1 = np.zeros(1, dtype=np.intp)
+    frame_rows(np.zeros(1), np.zeros(1), np.zeros(3), i1, i1, np.ones(1), i1, np.zeros(1), one, np.zeros((6, 1)), i1,
+               i1, np.zeros((1, 1)), np.zeros(1))  # fmt: skip
     for window in (False, True):
         velocity_box(np.zeros(1), np.zeros(1), 0.002, -one, one, one, one, 2.0 * one, window, -one, one,
                      np.zeros(1), np.zeros(1))  # fmt: skip
@@ -123,5 +149,5 @@ def warm_up() -> None:
 
 
 if __name__ == "__main__":
-    # `python -m services.solver.limits_kernel`: compile into the cache ahead of time (make setup, the image build).
+    # `python -m services.solver.tick_kernel`: compile into the cache ahead of time (make setup, the image build).
     warm_up()
