@@ -357,7 +357,9 @@ class SolverCore:
         # no freedom left to keep the waist and shoulders out of their stops, where the arm then locks up.
         # The weighted QP's posture term always acts (and a centring row there trades against the wrists:
         # run_happy's wqp wrist mean rose 2.45 -> 2.85 cm with it).
-        centring = RangeCentringTask(robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain)
+        centring = RangeCentringTask(
+            robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain, compiled=True
+        )
         #: the centring task when a level holds it (its weights follow q each tick), else None
         self.centring_task = (
             centring if cfg.range_centring_cost > 0 and centring.dim and cfg.algo in STRICT_ALGORITHMS else None

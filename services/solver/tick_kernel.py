@@ -1,13 +1,15 @@
-"""The elementwise arithmetic of a solver tick compiled with numba: the task rows, the box, the smoother's check.
+"""The elementwise arithmetic of a solver tick compiled with numba: task rows, the box, the smoother's check.
 
-Why compiled: the frame tasks' rows (``FrameRows``: ``A = W J``, ``b = W (v_ff + gain e)`` of every wrist and
-elbow task), ``JointBounds.compute`` (the box every level is solved in) and the smoother's limit check
-(``QuinticSmoother``: six limited quantities of the next state against their bounds) are about 10, 15 and 25
-numpy calls on vectors of 17 to 40 elements a tick: a microsecond of call overhead each for a few hundred
-flops. Here one loop does each. Every element goes through the numpy path's operations in the same order,
-so the results are the same bits; the numpy paths stay the readable references and the tests hold these
-kernels to them (``tests/solver/test_frame_rows.py``, ``test_bounds.py``, ``test_quintic.py``). A tick with
-a joint out of the smoother's limits still takes the numpy line search (``QuinticSmoother._line_search``).
+Why compiled: the frame tasks' rows (``FrameRows``: ``A = W J``, ``b = W (v_ff + gain e)`` of every wrist
+and elbow task), the range centring's weights and rows (``RangeCentringTask``), ``JointBounds.compute``
+(the box every level is solved in) and the smoother's limit check (``QuinticSmoother``: six limited
+quantities of the next state against their bounds) are 10 to 25 numpy calls each on vectors of 5 to 40
+elements a tick: a microsecond of call overhead each for a few hundred flops. Here one loop does each.
+Every element goes through the numpy path's operations in the same order, so the results are the same
+bits; the numpy paths stay the readable references and the tests hold these kernels to them
+(``tests/solver/test_frame_rows.py``, ``test_centring.py``, ``test_bounds.py``, ``test_quintic.py``). A
+tick with a joint out of the smoother's limits still takes the numpy line search
+(``QuinticSmoother._line_search``).
 
 In the box and the smoother's check, far from both stops the braking bound exceeds vmax, so the numpy paths
 skip it there (``braking_free``); here it is always computed: intersected before the clamp to +-vmax, a
@@ -130,9 +132,33 @@ def frame_rows(e, p_target, p, pos_rows, pos_src, gain, row_task, ff, cost, J, s
             A_all[d, j] = c * J[src[r], j]
 
 
+@njit(cache=True)
+def centring_weights(q, joints, lower, upper, span, band, peak, cost):
+    """``RangeCentringTask.update``: the weights cost (k,) of the joints ``q[joints]`` [rad] from their stops
+    lower, upper (k,) [rad] (span: upper - lower): 0 beyond the band, ``peak`` at a stop."""
+    for i in range(joints.shape[0]):
+        qj = q[joints[i]]
+        w = max(0.0, 1.0 - min(qj - lower[i], upper[i] - qj) / span[i] / band)
+        cost[i] = peak * (w * w)
+
+
+@njit(cache=True)
+def centring_rows(q, joints, inner_lower, inner_upper, gain, ff, cost, J, err, A, b):
+    """``RangeCentringTask``'s rows: err (k,) [rad] the depth of ``q[joints]`` into the band, ``A = W J`` (k, n),
+    ``b = W (v_ff + gain err)`` (k,) (the base ``Task.fill_qp_objective``'s steps)."""
+    for i in range(joints.shape[0]):
+        qj = q[joints[i]]
+        e = min(max(qj, inner_lower[i]), inner_upper[i]) - qj
+        err[i] = e
+        c = cost[i]
+        b[i] = (e * gain + ff[i]) * c
+        for j in range(J.shape[1]):
+            A[i, j] = c * J[i, j]
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) the kernel on a tiny problem, once a process: before any real-time tick
-    (``FrameRows``, ``QuinticSmoother`` and ``JointBounds`` do when built compiled)."""
+    (``FrameRows``, ``RangeCentringTask``, ``QuinticSmoother`` and ``JointBounds`` do when built compiled)."""
     global _warm
     if _warm:
         return
@@ -142,6 +168,9 @@ def warm_up() -> None:
     i1 = np.zeros(1, dtype=np.intp)
     frame_rows(np.zeros(1), np.zeros(1), np.zeros(3), i1, i1, np.ones(1), i1, np.zeros(1), one, np.zeros((6, 1)), i1,
                i1, np.zeros((1, 1)), np.zeros(1))  # fmt: skip
+    centring_weights(np.zeros(1), i1, -one, one, 2.0 * one, 0.25, 3.0, np.zeros(1))
+    centring_rows(np.zeros(1), i1, -one, one, 20.0, np.zeros(1), one, np.ones((1, 1)), np.zeros(1), np.zeros((1, 1)),
+                  np.zeros(1))  # fmt: skip
     for window in (False, True):
         velocity_box(np.zeros(1), np.zeros(1), 0.002, -one, one, one, one, 2.0 * one, window, -one, one,
                      np.zeros(1), np.zeros(1))  # fmt: skip
