@@ -105,6 +105,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(forearm reads the elbow)",
     )
     p.add_argument("--posture-policy", default=None, help="learned posture policy file (mimic posture train)")
+    p.add_argument(
+        "--saturation-weight",
+        type=float,
+        default=None,
+        help="strict HQPs: trade a saturated wrist level against the lower levels at this weight (SolverConfig."
+        "saturation_weight; default: SolverConfig's, 0 = off)",
+    )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -231,6 +238,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     if paper:
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
+    saturation = getattr(args, "saturation_weight", None)
+    if saturation is not None:
+        solver["saturation_weight"] = saturation
     collision = self_collision_choice(args)
     if collision is not None:
         solver["self_collision"] = collision

@@ -38,6 +38,7 @@ from services.solver.inequalities import Inequalities
 from services.solver.quintic import RAW_AMAX_FRACTION, RAW_POSITION_MARGIN, RAW_VMAX_FRACTION, QuinticSmoother
 from services.solver.recovery import LockupRecovery
 from services.solver.registry import make_algorithm
+from services.solver.saturation import SaturatedWristTrade
 from services.solver.slow_joints import SlowJoints
 from services.solver.targets import TargetSample, TargetTracker
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
@@ -171,6 +172,19 @@ class SolverConfig:
             exactly as before (with 0.2 on the shipped G1 the gesture wrists lost 13 %: 0.090 -> 0.102 cm).
             With the motor limits, 16 gesture clips (``mimic eval --no-sim``, task_acceleration 30): elbow
             mean 10.6 -> 3.5 cm, wrist 1.26 -> 1.29 cm against slow joints alone (h12a notes).
+        saturation_weight: strict hierarchies only, 0 = off (default): on a tick where the wrist level cannot be met
+            within the box (and no level-1 reserve is on), the wrists and the lower levels are traded in one
+            weighted QP, the wrist rows weighted this much against 1, and the strict hierarchy then meets the
+            wrist velocity of that trade exactly (``saturation.SaturatedWristTrade``; ``SolverCore._solve``).
+            Ticks the wrists can meet stay strict. 25 clips (``mimic eval --no-sim``, h12v notes) at 2: the HQP
+            elbow at or below the WQP's on 18 clips instead of 13 and mink's on 12 instead of 8 (run_happy 11.2 ->
+            3.4 cm, dash_active 10.6 -> 4.0, dash_proud 8.4 -> 3.0), but the vigorous wrists 0.7-2.7 -> 1.8-5.1 cm
+            (still below mink's), kick_normal's elbow 3.7 -> 5.4 cm, gesture wrists worse where they saturate
+            (byebye_normal 0.10 -> 0.19 cm) and stuck_s above 0.1 s on 7 clips instead of 4: off until the
+            gestures keep their figures (``services/solver/README.md``).
+        saturation_tolerance: the traded wrist residual is at most ``1 +`` this times the strict optimum's (the
+            wrist weight is raised until it is): the wrists keep moving towards a target they can reach. Without
+            the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4 s.
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
             ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
@@ -217,6 +231,8 @@ class SolverConfig:
     range_centring_gain: float = 20.0
     slow_joint_acceleration: float = 40.0
     level1_reserve: float | None = None
+    saturation_weight: float = 0.0
+    saturation_tolerance: float = 0.6
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     posture_blend_time: float = 0.3
@@ -244,6 +260,11 @@ class SolverConfig:
             raise ValueError(f"task_acceleration must be > 0 [m/s^2] or None, got {self.task_acceleration}")
         if self.level1_reserve is not None and not 0.0 <= self.level1_reserve < 1.0:
             raise ValueError(f"level1_reserve must be in [0, 1), got {self.level1_reserve}")
+        if not self.saturation_weight >= 0.0 or not self.saturation_tolerance >= 0.0:
+            raise ValueError(
+                f"saturation_weight and saturation_tolerance must be >= 0, got "
+                f"{self.saturation_weight}, {self.saturation_tolerance}"
+            )
         if not 0.0 <= self.posture_blend_time <= 10.0:
             raise ValueError(f"posture_blend_time must be in [0, 10] s, got {self.posture_blend_time}")
         if self.smoothing_ticks <= MAX_STEP_TICKS:
@@ -288,6 +309,14 @@ class SolverCore:
             reserve = MOTOR_LIMITS_RESERVE if self.slow.idx.size else 0.0
         #: share of each joint's band kept for the lower levels on a tick the wrists cannot be met (strict only)
         self._reserve = reserve if cfg.algo in STRICT_ALGORITHMS else 0.0
+        #: the trade of a saturated wrist level against the lower levels (strict only, without a reserve), or None
+        self.saturation = (
+            SaturatedWristTrade(
+                self.algorithm.backend, cfg.saturation_weight, cfg.saturation_tolerance, cfg.damping[-1]
+            )
+            if cfg.saturation_weight > 0 and cfg.algo in STRICT_ALGORITHMS and not self._reserve
+            else None
+        )
         self.collision = (
             SelfCollisionAvoidance(robot) if cfg.self_collision and robot.profile.collision is not None else None
         )
@@ -661,32 +690,62 @@ class SolverCore:
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
     def _solve(self, levels: list, lb: np.ndarray, ub: np.ndarray, ineq: Inequalities | None) -> Solution:
-        """The algorithm's solution; with a level-1 reserve, its wrist demand first re-aimed where it cannot be met.
+        """The algorithm's solution; with a level-1 reserve or a saturation trade, its wrist demand first re-aimed
+        where it cannot be met.
 
         Why: a wrist level that cannot be met in the box ends at its least-squares optimum, on a vertex of the
-        box with most joints at an acceleration bound, and its null space within the box is then (nearly) a
-        point: the elbows get nothing, tick after tick (h12a: 8.6 of 17 joints at their bound and level 1 met
-        on 0 % of a gesture clip's ticks with the motor limits). Here the wrist level alone is solved first in
-        the box shrunk around its centre to ``1 - reserve`` of each half-width; when that cannot meet the
-        demand, its reachable task velocity becomes the demand, which the full box then meets with
-        ``reserve`` of every joint's band to spare for the lower levels. The residual reported for level 1 is
-        against the original demand (the status tells the truth). A tick the wrists can meet in the shrunk box
-        is solved unchanged (one extra closed-form level-1 solve).
+        box with most joints at a bound, and its null space within the box is then (nearly) a point: the elbows
+        get nothing, tick after tick (h12a: 8.6 of 17 joints at their bound and level 1 met on 0 % of a gesture
+        clip's ticks with the motor limits; h12v: 9-10 of 17 at their speed limit on the vigorous clips with the
+        shipped ones). Two ways to leave them something, both re-aiming level 1 at a task velocity it can meet
+        (``_solve_reaimed``):
+
+        - reserve: the wrist level alone is solved first in the box shrunk around its centre to ``1 - reserve``
+          of each half-width; when that cannot meet the demand, its reachable task velocity becomes the demand,
+          which the full box then meets with ``reserve`` of every joint's band to spare for the lower levels. A
+          tick the wrists can meet in the shrunk box is solved unchanged (one extra closed-form level-1 solve).
+        - saturation trade (``saturation.SaturatedWristTrade``): the strict solution first; when its wrist level
+          is not met, the wrist velocity of a weighted trade against the lower levels, its loss capped.
         """
         conf = self.configuration
-        if not self._reserve:
+        if not self._reserve and self.saturation is None:
             return self.algorithm.solve(conf, levels, lb, ub, ineq)
         As, bs = self.algorithm.stack(levels, self.n).fill(conf)
+        tol = self.config.infeasible_tol
+        if self.saturation is not None:
+            sol = self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
+            if not sol.ok or not sol.residuals or sol.residuals[0] <= tol:
+                return sol
+            aim = self.saturation.wrist_velocity(LevelProblem(As, bs, lb, ub, ineq), sol.residuals[0])
+            if aim is None:
+                return sol
+            traded = self._solve_reaimed(As, bs, aim, lb, ub, ineq, levels)
+            return traded if traded.ok else sol
         mid = 0.5 * (lb + ub)
         h = (1.0 - self._reserve) * 0.5 * (ub - lb)
         first = self.algorithm.solve_problem(LevelProblem(As[:1], bs[:1], mid - h, mid + h, ineq))
-        if not first.ok or first.residuals[0] <= self.config.infeasible_tol:
+        if not first.ok or first.residuals[0] <= tol:
             return self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
+        return self._solve_reaimed(As, bs, As[0] @ first.qd, lb, ub, ineq, levels)
+
+    def _solve_reaimed(
+        self,
+        As: list[np.ndarray],
+        bs: list[np.ndarray],
+        aim: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        ineq: Inequalities | None,
+        levels: list,
+    ) -> Solution:
+        """The strict solution with level 1's demand ``bs[0]`` replaced by ``aim`` (m_1,), a task velocity some qd in
+        the box reaches; the level-1 residual reported is still against the original demand (the status tells the
+        truth). ``bs[0]`` keeps the aim afterwards (the stack is refilled every tick)."""
         demand = bs[0].copy()
-        np.matmul(As[0], first.qd, out=bs[0])
-        sol = self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
-        r = As[0] @ sol.qd - demand
+        bs[0][:] = aim
+        sol = self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, self.configuration, levels))
         if sol.residuals:
+            r = As[0] @ sol.qd - demand
             sol.residuals[0] = math.sqrt(float(r @ r))
         return sol
 

@@ -1,0 +1,103 @@
+"""A saturated wrist level traded against the lower levels (``SolverConfig.saturation_weight``, h12v).
+
+Why this exists: when the wrists cannot be met within the joint box, the strict hierarchy keeps level 1's
+least-squares optimum, whose joints sit at their bounds and leave the elbow level nothing; on the vigorous clips
+the elbows drifted 8-11 cm off. The trade gives up a capped share of the wrist residual for the lower levels on
+those ticks only; ticks whose wrist level can be met stay strict.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.solver.core import SolverConfig, SolverCore
+from services.solver.hqp_nullspace import HqpNullspace
+from services.solver.qp import make_backend
+from services.solver.saturation import SaturatedWristTrade
+from tests.solver.test_core import targets_from_q
+
+# Two joints, box [-1, 1]^2. Level 1 asks x1 + x2 = 2.5 (the box reaches 2: strict optimum x = (1, 1), r1* = 0.5);
+# level 2 asks x1 - x2 = 3, which the strict optimum misses by 3. With the wrist weight w the weighted optimum is
+# x = (1, t), t = (1.5 w^2 - 2) / (w^2 + 1), r1 = 3.5 / (w^2 + 1): at w = 2, t = 0.8 and r1 = 0.7 = 1.4 r1*.
+A1, B1 = np.array([[1.0, 1.0]]), np.array([2.5])
+A2, B2 = np.array([[1.0, -1.0]]), np.array([3.0])
+LB, UB = -np.ones(2), np.ones(2)
+
+
+def _strict():
+    return HqpNullspace(make_backend("daqp"), eps=1e-12, compiled=False)
+
+
+def test_the_trade_of_a_two_joint_problem_has_its_known_answer():
+    strict = _strict().solve_matrices([A1, A2], [B1, B2], LB, UB)
+    np.testing.assert_allclose(strict.qd, [1.0, 1.0], atol=1e-9)
+    r1 = strict.residuals[0]
+    assert r1 == pytest.approx(0.5)
+    trade = SaturatedWristTrade(make_backend("daqp"), weight=2.0, tolerance=0.6, damping=1e-12)
+    aim = trade.wrist_velocity(strict_problem := _problem(), r1)
+    assert aim is not None and aim == pytest.approx([1.8], abs=1e-6)  # within the cap (0.7 <= 1.6 * 0.5): uncapped
+    assert trade.counts == {"traded": 1, "capped": 0}
+    # the strict hierarchy on the re-aimed level 1: the same point, level 1 met exactly at the aim
+    reaimed = _strict().solve_matrices([A1, A2], [aim, B2], LB, UB)
+    np.testing.assert_allclose(reaimed.qd, [1.0, 0.8], atol=1e-6)
+    assert np.linalg.norm(A1 @ reaimed.qd - B1) == pytest.approx(0.7, abs=1e-6)
+    assert np.linalg.norm(A2 @ reaimed.qd - B2) == pytest.approx(2.8, abs=1e-6)  # the strict optimum: 3
+    assert strict_problem.bs[0] is B1  # the problem is not changed
+
+
+def test_a_trade_that_costs_the_wrists_more_than_the_tolerance_is_capped():
+    # tolerance 0.2: r1 <= 0.6, which needs w^2 >= 3.5 / 0.6 - 1 (w >= 2.2); at w = 2 the trade gives up 0.7
+    trade = SaturatedWristTrade(make_backend("daqp"), weight=2.0, tolerance=0.2, damping=1e-12)
+    aim = trade.wrist_velocity(_problem(), 0.5)
+    assert aim is not None
+    r1 = abs(float(aim[0]) - 2.5)
+    assert 0.5 < r1 <= 0.6 + 1e-9  # still trades, never past the cap
+    assert trade.counts == {"traded": 1, "capped": 1}
+
+
+def _problem():
+    from services.solver.base import LevelProblem
+
+    return LevelProblem([A1, A2], [B1, B2], LB, UB)
+
+
+def _tick(robot, cfg: SolverConfig, targets):
+    core = SolverCore(robot, cfg)
+    core.reset(robot.q_rest)
+    return core, core.step(targets, None, 0.0)
+
+
+def test_the_solver_trades_only_on_ticks_whose_wrists_cannot_be_met(robot17):
+    robot = robot17
+    # Saturated: the wrists where they are but moving at 5 m/s (from rest the box gives them well under that), the
+    # elbows where they are and still: the strict optimum moves the elbows with the wrists, whatever it costs them.
+    fast = targets_from_q(robot, robot.q_rest, vel=np.array([0.0, 0.0, 5.0]))
+    for e in ("left_elbow", "right_elbow"):
+        fast.targets[e].v[:] = 0.0
+    strict_core, strict = _tick(robot, SolverConfig(qp="daqp"), fast)
+    traded_core, traded = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0), fast)
+    assert strict.status == traded.status == "infeasible"
+    r1, r2 = strict.residuals[:2]
+    assert traded.residuals[0] <= 1.6 * r1 + 1e-9  # the wrists lose at most the tolerance (0.6) ...
+    assert traded.residuals[0] > r1 + 1e-6  # ... and do give something up
+    assert traded.residuals[1] < 0.9 * r2  # for the elbow level, which the strict optimum left nothing
+    assert traded_core.saturation.counts["traded"] == 1
+    assert strict_core.saturation is None  # off by default: the shipped solver is unchanged
+    # Met: the same targets at rest, 0.1 mm off: the wrists are met and the solution is the strict one, bit for bit.
+    near = targets_from_q(robot, robot.q_rest, offset=np.array([0.0, 0.0, 1e-4]))
+    _, strict = _tick(robot, SolverConfig(qp="daqp"), near)
+    core, traded = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0), near)
+    assert strict.status == traded.status == "ok"
+    np.testing.assert_array_equal(traded.q, strict.q)
+    assert core.saturation.counts["traded"] == 0
+
+
+def test_the_trade_is_for_strict_hierarchies_without_a_reserve_and_its_settings_are_checked(robot17):
+    assert SolverCore(robot17, SolverConfig(algo="wqp", saturation_weight=2.0)).saturation is None
+    assert SolverCore(robot17, SolverConfig(algo="hqp-original", saturation_weight=2.0)).saturation is not None
+    assert SolverCore(robot17, SolverConfig(saturation_weight=2.0, level1_reserve=0.2)).saturation is None
+    with pytest.raises(ValueError, match="saturation"):
+        SolverConfig(saturation_weight=-1.0)
+    with pytest.raises(ValueError, match="saturation"):
+        SaturatedWristTrade(make_backend("daqp"), weight=0.0, tolerance=0.6)
