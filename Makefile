@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
-	# Compile the solver's numba kernel into its cache now (~10 s of CPU), not in the first solver started.
+	# Compile the solver's numba kernels into their cache now (~10 s of CPU), not in the first solver started.
 	$(BIN)/python -m services.solver.hqp_kernel
+	$(BIN)/python -m services.solver.tick_kernel
 	touch $(STAMP)
 
 demo: setup

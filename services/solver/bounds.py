@@ -38,9 +38,14 @@ class JointBounds:
         lower, upper: (n,) position limits [rad].
         vmax: (n,) velocity limits [rad/s], > 0.
         amax: (n,) acceleration limits [rad/s^2], > 0.
+        compiled: :meth:`compute` in the numba kernel (``tick_kernel.velocity_box``, compiled when built: the
+            solver's per-tick box); False (default, no numba loaded) runs the numpy steps, the readable reference
+            the kernel is tested against. Both give the same bits.
     """
 
-    def __init__(self, lower: np.ndarray, upper: np.ndarray, vmax: np.ndarray, amax: np.ndarray):
+    def __init__(
+        self, lower: np.ndarray, upper: np.ndarray, vmax: np.ndarray, amax: np.ndarray, compiled: bool = False
+    ):
         self.lower = np.asarray(lower, dtype=float)
         self.upper = np.asarray(upper, dtype=float)
         self.vmax = np.asarray(vmax, dtype=float)
@@ -64,6 +69,12 @@ class JointBounds:
         self._amax_dt_for = None
         self._free = np.empty(n)  # distance to a stop beyond which braking allows more than vmax (``braking_free``)
         self._free_for: tuple[float, float] | None = None
+        self._kernel = None
+        if compiled:
+            from services.solver import tick_kernel
+
+            tick_kernel.warm_up()
+            self._kernel = tick_kernel
 
     def compute(
         self,
@@ -83,6 +94,13 @@ class JointBounds:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         lb, ub, t = self.lb, self.ub, self._t
+        if self._kernel is not None:
+            w_lo, w_hi = (lb, ub) if window is None else window  # (lb, ub): unread placeholders
+            self._kernel.velocity_box(
+                q, qd_prev, dt, self.lower, self.upper, self.vmax, self.amax, self._two_over_a, window is not None,
+                w_lo, w_hi, lb, ub,
+            )  # fmt: skip
+            return lb, ub
         if window is not None:
             lo, hi = self.brake_both(q - window[0], window[1] - q, dt)
             lb[:] = lo

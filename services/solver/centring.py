@@ -48,9 +48,11 @@ class RangeCentringTask(Task):
         cost: row weight [1/rad] at a stop (0 turns the task off).
         band: fraction (0, 0.5] of each joint's range, from each stop, where the weight is not zero.
         gain: pull gain [1/s].
+        compiled: weights and rows in the numba kernel (``tick_kernel``, compiled when built: the solver's); False
+            (default, no numba loaded) the numpy steps, the reference the kernel is tested against (same bits).
     """
 
-    def __init__(self, robot: RobotModel, cost: float, band: float, gain: float):
+    def __init__(self, robot: RobotModel, cost: float, band: float, gain: float, compiled: bool = False):
         if not 0.0 < band <= 0.5:
             raise ValueError(f"range centring band must be in (0, 0.5] of the range, got {band}")
         if not cost >= 0.0:
@@ -69,9 +71,20 @@ class RangeCentringTask(Task):
         self._J = np.zeros((self.dim, robot.nq))
         self._J[np.arange(self.dim), self.joints] = 1.0
         self._err = np.zeros(self.dim)
+        self._kernel = None
+        if compiled:
+            from services.solver import tick_kernel
+
+            tick_kernel.warm_up()
+            self._kernel = tick_kernel
 
     def update(self, q: np.ndarray) -> None:
         """Weights (k,) from the joints q (n,) [rad]: 0 beyond ``band`` from both stops, ``cost`` at a stop."""
+        if self._kernel is not None:
+            self._kernel.centring_weights(
+                q, self.joints, self.lower, self.upper, self.span, self.band, self.peak, self.cost
+            )
+            return
         qj = q[self.joints]
         d = np.minimum(qj - self.lower, self.upper - qj) / self.span
         w = np.maximum(0.0, 1.0 - d / self.band)
@@ -85,3 +98,12 @@ class RangeCentringTask(Task):
 
     def compute_jacobian(self, configuration: Configuration) -> np.ndarray:
         return self._J
+
+    def fill_qp_objective(self, configuration: Configuration, A: np.ndarray, b: np.ndarray) -> None:
+        if self._kernel is None:
+            super().fill_qp_objective(configuration, A, b)
+            return
+        self._kernel.centring_rows(
+            configuration.q, self.joints, self.inner_lower, self.inner_upper, self.gain, self.feedforward(), self.cost,
+            self._J, self._err, A, b,
+        )  # fmt: skip

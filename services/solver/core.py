@@ -296,7 +296,7 @@ class SolverCore:
         self.limits = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax)
         fv, fa, m = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION, RAW_POSITION_MARGIN) if cfg.smoothing else (1, 1, 0)
         m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
-        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax)
+        self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax, compiled=True)
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
         a_task = cfg.task_acceleration
@@ -386,7 +386,9 @@ class SolverCore:
         # no freedom left to keep the waist and shoulders out of their stops, where the arm then locks up.
         # The weighted QP's posture term always acts (and a centring row there trades against the wrists:
         # run_happy's wqp wrist mean rose 2.45 -> 2.85 cm with it).
-        centring = RangeCentringTask(robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain)
+        centring = RangeCentringTask(
+            robot, cfg.range_centring_cost, cfg.range_centring_band, cfg.range_centring_gain, compiled=True
+        )
         #: the centring task when a level holds it (its weights follow q each tick), else None
         self.centring_task = (
             centring if cfg.range_centring_cost > 0 and centring.dim and cfg.algo in STRICT_ALGORITHMS else None

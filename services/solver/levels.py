@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 
 import numpy as np
 
+from services.solver.frame_rows import FrameRows, batchable
 from shared.kinematics import Configuration, Task
 
 
@@ -15,9 +17,10 @@ class LevelStack:
     Args:
         levels: tasks by priority, highest first.
         n: number of joints.
+        compiled: the position and pose tasks' arithmetic in the numba kernel (``FrameRows``).
     """
 
-    def __init__(self, levels: Sequence[Sequence[Task]], n: int):
+    def __init__(self, levels: Sequence[Sequence[Task]], n: int, compiled: bool = True):
         self.levels = [list(tasks) for tasks in levels]
         self.n = n
         self.key = _key(levels)
@@ -32,16 +35,24 @@ class LevelStack:
         self.b_all = np.zeros(int(self.offsets[-1]))
         self.A: list[np.ndarray] = []
         self.b: list[np.ndarray] = []
+        #: (task, its A rows, its b rows) of every task filled on its own (not by ``frame_rows``)
         self._rows: list[tuple[Task, np.ndarray, np.ndarray]] = []
+        batched: list[tuple[Task, int]] = []
         for k, tasks in enumerate(self.levels):
-            A = self.A_all[self.offsets[k] : self.offsets[k + 1]]
-            b = self.b_all[self.offsets[k] : self.offsets[k + 1]]
+            start = int(self.offsets[k])
+            A = self.A_all[start : self.offsets[k + 1]]
+            b = self.b_all[start : self.offsets[k + 1]]
             i = 0
             for t in tasks:
-                self._rows.append((t, A[i : i + t.dim], b[i : i + t.dim]))
+                if batchable(t):
+                    batched.append((t, start + i))
+                else:
+                    self._rows.append((t, A[i : i + t.dim], b[i : i + t.dim]))
                 i += t.dim
             self.A.append(A)
             self.b.append(b)
+        #: the position and pose tasks' rows, filled together
+        self.frame_rows = FrameRows(batched, n, compiled)
 
     def holds(self, levels: Sequence[Sequence[Task]], n: int) -> bool:
         """True when this stack was built for exactly these task objects and n joints."""
@@ -49,10 +60,12 @@ class LevelStack:
 
     def fill(self, configuration: Configuration) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Evaluate every task at the configuration; returns the (A_k, b_k) lists (buffers reused)."""
+        self.frame_rows.fill(configuration, self.A_all, self.b_all)
         for task, A, b in self._rows:
             task.fill_qp_objective(configuration, A, b)
         return self.A, self.b
 
 
-def _key(levels: Sequence[Sequence[Task]]) -> tuple[tuple[int, ...], ...]:
-    return tuple(tuple(id(t) for t in tasks) for tasks in levels)
+def _key(levels: Sequence[Sequence[Task]]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The task objects' ids in order and the tasks per level (``map``: no Python-level loop, it runs every tick)."""
+    return tuple(map(id, chain.from_iterable(levels))), tuple(map(len, levels))

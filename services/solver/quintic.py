@@ -72,9 +72,13 @@ class QuinticSmoother:
         dt: nominal tick [s]; the horizon is ``horizon_ticks * dt``.
         horizon_ticks: segment length T in ticks (>= 2; larger = smoother, slower to react).
         limits: position, velocity and acceleration limits of the output (None: unlimited).
+        compiled: check the limits with the numba kernel (``tick_kernel``, compiled when built); False runs
+            the numpy rows, the readable reference the kernel is tested against. Both give the same bits.
     """
 
-    def __init__(self, n: int, dt: float, horizon_ticks: int = 4, limits: JointBounds | None = None):
+    def __init__(
+        self, n: int, dt: float, horizon_ticks: int = 4, limits: JointBounds | None = None, compiled: bool = True
+    ):
         if horizon_ticks < 2:
             raise ValueError(f"horizon_ticks must be >= 2, got {horizon_ticks}")
         self.dt = dt
@@ -87,28 +91,39 @@ class QuinticSmoother:
         self._C = _coefficient_map(self.T)
         self._s = -1.0
         self._K = np.zeros((3, 5))
+        #: (3, 6) p, v, a rows of the monomials s^0..s^5 at the last step (``propagator``; constants set here)
+        self._P = np.zeros((3, 6))
+        self._P[0, 0] = self._P[1, 1] = self._P[2, 2] = 1.0
+        self._P[2, 2] = 2.0
         self._Y = np.zeros((6, n))  # limited quantities of the next state (see _limit)
         self._lo = np.zeros((6, n))
         self._hi = np.zeros((6, n))
         self._limits_for: float | None = None  # the step s the s-dependent rows of _lo, _hi were set for
         self._dist = np.empty((2, n))  # distances to the stops below and above
         self._vmax_rows = False  # the velocity rows of _lo, _hi hold +-vmax (no braking bound tighter)
+        self._bad = np.zeros(n, dtype=bool)  # joints out of their limits at the last check (compiled path)
+        self._kernel = None
         if limits is not None:
             self._lo[0], self._hi[0] = limits.lower, limits.upper
             self._hi[2] = limits.amax
             np.negative(limits.amax, out=self._lo[2])
+            if compiled:
+                # Imported here: only a smoother with limits loads numba, and it compiles now, not on a tick.
+                from services.solver import tick_kernel
+
+                tick_kernel.warm_up()
+                self._kernel = tick_kernel
 
     def propagator(self, s: float) -> np.ndarray:
         """(3, 5) map from (p0, v0, a0, p1, v1) to (p, v, a) at s [s] into the segment (cached for the last s)."""
         if s != self._s:
+            # Written into a kept buffer, entry by entry: a fresh np.array of nested lists costs several times
+            # more, and the step changes every tick (the real time between ticks).
             s2, s3 = s * s, s * s * s
-            P = np.array(
-                [
-                    [1.0, s, s2, s3, s3 * s, s3 * s2],
-                    [0.0, 1.0, 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s],
-                    [0.0, 0.0, 2.0, 6.0 * s, 12.0 * s2, 20.0 * s3],
-                ]
-            )
+            P = self._P
+            P[0, 1:] = s, s2, s3, s3 * s, s3 * s2
+            P[1, 2:] = 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s
+            P[2, 3:] = 6.0 * s, 12.0 * s2, 20.0 * s3
             np.matmul(P, self._C, out=self._K)
             self._s = s
         return self._K
@@ -166,6 +181,27 @@ class QuinticSmoother:
         """Take the next state nxt (3, n) or the nearest one along the segment-end line that respects the limits."""
         lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
+        if self._kernel is not None:
+            bad = self._bad
+            if not self._kernel.smoother_rows(
+                y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim._two_over_a, BRAKE_DECEL, lo, hi, bad
+            ):
+                S[:3] = nxt
+                return 0
+            self._limits_for = None  # the kernel wrote the rows the numpy path caches
+            self._vmax_rows = False
+        else:
+            bad = self._smoother_rows(s)
+            if not bad.any():
+                S[:3] = nxt
+                return 0
+        return self._line_search(nxt, bad, s)
+
+    def _smoother_rows(self, s: float) -> np.ndarray:
+        """The numpy reference of ``tick_kernel.smoother_rows``: y's rows 3-5 and their bounds at step s [s];
+        returns the (n,) mask of joints with a row out of its bounds."""
+        lim, S, y, lo, hi = self.limits, self._S, self._Y, self._lo, self._hi
+        p0, v0 = S[0], S[1]
         # Quantities limited at the next state, all affine in the segment end (rows: p, v, a, dp, dv,
         # v + a s / 2); nxt was computed into y[:3] (``_advance``).
         np.subtract(y[0], p0, out=y[3])
@@ -195,10 +231,14 @@ class QuinticSmoother:
             np.minimum(above, lim.vmax, out=hi[1])
             lo[5], hi[5] = lo[1], hi[1]
             self._vmax_rows = False
-        bad = ((y < lo) | (y > hi)).any(axis=0)
-        if not bad.any():
-            S[:3] = nxt
-            return 0
+        return ((y < lo) | (y > hi)).any(axis=0)
+
+    def _line_search(self, nxt: np.ndarray, bad: np.ndarray, s: float) -> int:
+        """The next state nxt (3, n) with the segment end of each bad joint (n,) mask moved back along the line
+        until its limits hold (y's rows and their bounds filled by ``_smoother_rows`` or the kernel); returns the
+        joints clamped."""
+        S, y, lo, hi = self._S, self._Y, self._lo, self._hi
+        p0, v0 = S[0], S[1]
         # Per bad joint: lambda in [0, 1] on the line from the keep-velocity end to the desired end.
         K = self._K
         idx = np.flatnonzero(bad)

@@ -11,6 +11,10 @@ from shared.messages import Header, TaskTargets
 from shared.rotations import quat_to_matrix
 from shared.targets import TARGET_NAMES
 
+#: (3,) zero velocity of a sample at rest, shared by every such sample (read-only: samples are never written).
+_AT_REST = np.zeros(3)
+_AT_REST.flags.writeable = False
+
 
 @dataclass(slots=True)
 class TargetSample:
@@ -109,10 +113,10 @@ class TargetTracker:
         age = t - s.t
         stale = self.stale(t)
         if s.held or age <= 0.0:
-            return TargetSample(s.p, s.R, s.v if not (s.held or stale) else np.zeros(3), s.w, s.use_rotation, s.held)
+            return TargetSample(s.p, s.R, s.v if not (s.held or stale) else _AT_REST, s.w, s.use_rotation, s.held)
         tau = min(age, self.horizon)
         p = s.p + s.v * tau
         R = pin.exp3(s.w * tau) @ s.R if s.use_rotation else s.R
-        moving = age < self.horizon and not stale
-        zero = np.zeros(3)
-        return TargetSample(p, R, s.v if moving else zero, s.w if moving else zero, s.use_rotation, stale)
+        if age < self.horizon and not stale:
+            return TargetSample(p, R, s.v, s.w, s.use_rotation, False)
+        return TargetSample(p, R, _AT_REST, _AT_REST, s.use_rotation, stale)

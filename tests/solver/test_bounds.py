@@ -73,3 +73,29 @@ def test_bad_limits_are_rejected(robot, bounds):
         JointBounds(robot.lower, robot.upper, robot.vmax[:3], robot.amax)
     with pytest.raises(ValueError, match="dt"):
         bounds.compute(robot.q_rest, np.zeros(n), 0.0)
+
+
+def test_compiled_box_gives_the_numpy_steps_bits():
+    """``JointBounds(compiled=True)`` (``tick_kernel.velocity_box``) against the numpy steps, bit for bit: joints
+    far from their stops (the numpy path skips the braking bound), near and past them, fast and at rest, random
+    steps, with and without the measured-joint window (whose edges may also be crossed)."""
+    rng = np.random.default_rng(11)
+    n = 7
+    lower, upper = -rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 2.0, n)
+    args = (lower, upper, rng.uniform(2.0, 20.0, n), rng.uniform(20.0, 900.0, n))
+    fast, ref = JointBounds(*args, compiled=True), JointBounds(*args)
+    skipped = braked = 0
+    for k in range(4000):
+        span = 1.2 if k % 2 else 0.3  # odd draws reach and cross the stops, even ones stay mid-range
+        q = rng.uniform(lower * span, upper * span)
+        qd = rng.uniform(-25.0, 25.0, n) * rng.integers(0, 2)
+        dt = rng.uniform(1e-4, 4e-3)
+        window = None if k % 3 else (q - rng.uniform(-0.05, 0.3, n), q + rng.uniform(-0.05, 0.3, n))
+        got = [x.copy() for x in fast.compute(q, qd, dt, window)]
+        want = ref.compute(q, qd, dt, window)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        free = ref.braking_free(np.stack([q - lower, upper - q]), dt)
+        skipped += free
+        braked += not free
+    assert skipped > 500 and braked > 500  # both of the numpy path's branches were compared

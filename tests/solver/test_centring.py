@@ -68,3 +68,27 @@ def test_solver_leaves_a_shoulder_stop_without_moving_the_wrists(robot17):
     assert abs(moved[0.0]) < 1e-3, moved  # nothing else asks the joint to move
     assert moved[SolverConfig().range_centring_cost] > 0.05, moved  # out of the stop
     assert wrist_err[SolverConfig().range_centring_cost] < 1e-3, wrist_err
+
+
+def test_compiled_weights_and_rows_give_the_numpy_steps_bits(robot17):
+    """``RangeCentringTask(compiled=True)`` (``tick_kernel``) against the numpy steps, bit for bit: joints mid-range,
+    in the band and past the stops, weights and rows."""
+    fast = RangeCentringTask(robot17, cost=3.0, band=0.25, gain=20.0, compiled=True)
+    ref = RangeCentringTask(robot17, cost=3.0, band=0.25, gain=20.0)
+    assert fast._kernel is not None and ref._kernel is None
+    conf = Configuration(robot17)
+    rng = np.random.default_rng(4)
+    lo, hi = robot17.lower, robot17.upper
+    in_band = 0
+    for _ in range(300):
+        q = rng.uniform(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        conf.q[:] = q  # the rows read conf.q only (no kinematics needed)
+        for task in (fast, ref):
+            task.update(q)
+        np.testing.assert_array_equal(fast.cost, ref.cost)
+        A, b = fast.compute_qp_objective(conf)
+        A_ref, b_ref = ref.compute_qp_objective(conf)
+        np.testing.assert_array_equal(A, A_ref)
+        np.testing.assert_array_equal(b, b_ref)
+        in_band += int(np.count_nonzero((ref.cost > 0) & (ref.cost < 3.0)))
+    assert in_band > 300  # the weights were compared inside the band, not only at 0
