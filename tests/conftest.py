@@ -16,12 +16,13 @@ MOCAP_DIR = _mocap_dir()
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Compile (or load) the solver's numba kernel once before any test: many tests start solver processes
-    with a deadline, and in a fresh clone the first of them would otherwise spend ~10 s of CPU compiling
-    it (all of them at once under xdist-like concurrency). Cached, this costs about 1 s."""
-    from services.solver import hqp_kernel
+    """Compile (or load) the solver's numba kernels once before any test: many tests start solver processes
+    with a deadline, and with a stale cache (a kernel edited since ``make setup``) the first of them would
+    otherwise spend ~10 s of CPU compiling them. Cached, this costs about 1 s."""
+    from services.solver import hqp_kernel, tick_kernel
 
     hqp_kernel.warm_up()
+    tick_kernel.warm_up()
 
 
 def _require(path: Path) -> Path:
