@@ -2,7 +2,8 @@
 
 Why compiled: the frame tasks' rows (``FrameRows``: ``A = W J``, ``b = W (v_ff + gain e)`` of every wrist
 and elbow task), the range centring's weights and rows (``RangeCentringTask``), ``JointBounds.compute``
-(the box every level is solved in) and the smoother's limit check (``QuinticSmoother``: six limited
+(the box every level is solved in), the clip and integration of the solution (``SolverCore``) and the
+smoother's limit check (``QuinticSmoother``: six limited
 quantities of the next state against their bounds) are 10 to 25 numpy calls each on vectors of 5 to 40
 elements a tick: a microsecond of call overhead each for a few hundred flops. Here one loop does each.
 Every element goes through the numpy path's operations in the same order, so the results are the same
@@ -133,6 +134,28 @@ def frame_rows(e, p_target, p, pos_rows, pos_src, gain, row_task, ff, cost, J, s
 
 
 @njit(cache=True)
+def clip_and_integrate(qd, lb, ub, dt, lower, upper, q, qd_out):
+    """``SolverCore._checked_velocity`` then ``_integrate``: qd (n,) [rad/s] clipped into [lb, ub] into qd_out, and
+    q (n,) [rad] advanced by ``qd_out dt`` [s] and clipped into [lower, upper] (both written in place).
+
+    Returns:
+        the largest ``|qd_out - qd|`` [rad/s] (the safety clamp's size); -1 when qd has a non-finite element,
+        and then nothing is written (the caller brakes instead).
+    """
+    n = qd.shape[0]
+    for j in range(n):
+        if not math.isfinite(qd[j]):
+            return -1.0
+    worst = 0.0
+    for j in range(n):
+        c = min(max(qd[j], lb[j]), ub[j])
+        worst = max(worst, abs(c - qd[j]))
+        qd_out[j] = c
+        q[j] = min(max(q[j] + c * dt, lower[j]), upper[j])
+    return worst
+
+
+@njit(cache=True)
 def centring_weights(q, joints, lower, upper, span, band, peak, cost):
     """``RangeCentringTask.update``: the weights cost (k,) of the joints ``q[joints]`` [rad] from their stops
     lower, upper (k,) [rad] (span: upper - lower): 0 beyond the band, ``peak`` at a stop."""
@@ -171,6 +194,7 @@ def warm_up() -> None:
     centring_weights(np.zeros(1), i1, -one, one, 2.0 * one, 0.25, 3.0, np.zeros(1))
     centring_rows(np.zeros(1), i1, -one, one, 20.0, np.zeros(1), one, np.ones((1, 1)), np.zeros(1), np.zeros((1, 1)),
                   np.zeros(1))  # fmt: skip
+    clip_and_integrate(np.zeros(1), -one, one, 0.002, -one, one, np.zeros(1), np.zeros(1))
     for window in (False, True):
         velocity_box(np.zeros(1), np.zeros(1), 0.002, -one, one, one, one, 2.0 * one, window, -one, one,
                      np.zeros(1), np.zeros(1))  # fmt: skip
