@@ -22,12 +22,15 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of a quaternion (4,) w, x, y, z (normalised here)."""
-    qn = np.asarray(q, dtype=float).copy()
-    norm = float(np.linalg.norm(qn))
-    if not np.isfinite(norm) or norm == 0.0:
+    qn = np.array(q, dtype=float)
+    # np.linalg.norm's own steps for a vector (the same bits) without its Python overhead: the solver converts
+    # every target of every message.
+    norm = math.sqrt(qn.dot(qn))
+    if not math.isfinite(norm) or norm == 0.0:
         raise ValueError(f"quaternion {q!r} has no rotation (norm {norm})")
+    qn /= norm
     R = np.empty(9)
-    mujoco.mju_quat2Mat(R, qn / norm)
+    mujoco.mju_quat2Mat(R, qn)
     return R.reshape(3, 3)
 
 

@@ -297,6 +297,10 @@ class SolverCore:
         fv, fa, m = (RAW_VMAX_FRACTION, RAW_AMAX_FRACTION, RAW_POSITION_MARGIN) if cfg.smoothing else (1, 1, 0)
         m = np.minimum(m, 0.5 * (robot.upper - robot.lower))
         self.bounds = JointBounds(robot.lower + m, robot.upper - m, fv * robot.vmax, fa * robot.amax, compiled=True)
+        from services.solver import tick_kernel  # compiled and loaded by the box above
+
+        #: the per-tick kernels, or None: the numpy steps, their reference (``_advance_raw``)
+        self._kernel = tick_kernel
         self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
         self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
         a_task = cfg.task_acceleration
@@ -683,9 +687,8 @@ class SolverCore:
             sol = self.algorithm.solve(self.configuration, levels, lb, ub, ineq)
         self.counts["qp_calls"] += sol.qp_calls
         self.counts["qp_fallbacks"] = getattr(getattr(self.algorithm, "backend", None), "fallbacks", 0)
-        qd, reason = self._checked_velocity(sol, lb, ub)
+        qd, reason = self._advance_raw(sol, lb, ub, dt)
         status, reason = self._status(qd, sol, held, reason)
-        self._integrate(qd, dt)
         self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
@@ -771,19 +774,46 @@ class SolverCore:
             f"(safety distance {100 * self.collision.d_s:.1f} cm); the target is inside the body or behind it"
         )
 
+    def _advance_raw(self, sol: Solution, lb: np.ndarray, ub: np.ndarray, dt: float) -> tuple[np.ndarray | None, str]:
+        """``_checked_velocity`` then ``_integrate`` over dt [s]: the qd (n,) [rad/s] integrated (None when the solve
+        failed: braked) and the reason text so far.
+
+        With the tick kernel (``self._kernel``) in one compiled call (``tick_kernel.clip_and_integrate``), the
+        same operations in the same order as these two methods, which stay its reference (``test_core.py``).
+        """
+        qd = sol.qd
+        if self._kernel is None or not sol.ok or qd.dtype != np.float64 or not qd.flags.c_contiguous:
+            # (Another dtype or layout would compile a second version of the kernel on a real-time tick.)
+            checked, reason = self._checked_velocity(sol, lb, ub)
+            self._integrate(checked, dt)
+            return checked, reason
+        worst = self._kernel.clip_and_integrate(qd, lb, ub, dt, self.bounds.lower, self.bounds.upper, self.q_raw,
+                                                self.qd_raw)  # fmt: skip
+        if worst < 0.0:  # not finite: nothing was written
+            self._integrate(None, dt)
+            return self._failed(sol)
+        return self.qd_raw, self._clamp_reason(sol.reason, worst)
+
     def _checked_velocity(self, sol: Solution, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray | None, str]:
         """The solution's qd within [lb, ub], or None when it failed (not ok or not finite); the reason text so far."""
         if not sol.ok or not np.isfinite(sol.qd).all():
-            self.counts["failed"] += 1
-            return None, sol.reason or "solution not finite"
+            return self._failed(sol)
         qd = sol.qd
-        reason = sol.reason
         clipped = np.minimum(np.maximum(qd, lb), ub)
+        return clipped, self._clamp_reason(sol.reason, np.abs(clipped - qd).max())
+
+    def _failed(self, sol: Solution) -> tuple[None, str]:
+        """A failed solve (not ok or not finite): counted, and its reason."""
+        self.counts["failed"] += 1
+        return None, sol.reason or "solution not finite"
+
+    def _clamp_reason(self, reason: str, worst: float) -> str:
+        """The reason text with the safety clamp added when the solution was clipped by worst [rad/s] (counted)."""
         # Beyond 1e-9 rad/s of the box is a safety clamp (the algorithms stay inside it up to round-off).
-        if np.abs(clipped - qd).max() > 1e-9:
+        if worst > 1e-9:
             self.counts["safety_clamps"] += 1
             reason = (reason + "; " if reason else "") + "safety clamp"
-        return clipped, reason
+        return reason
 
     def _status(self, qd: np.ndarray | None, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
         """Command status and its reason: failed (qd None, see ``_checked_velocity``), held, infeasible (level-1

@@ -64,6 +64,14 @@ class FrameRows:
         self._J = np.empty((6 * F, n))  # every frame's (6, n) Jacobian, stacked
         self._p = np.empty(3 * F)  # every frame's position [m], stacked
         self._e = np.empty(r)  # the error rows
+        # The arrays the tasks write their targets, costs and feed-forwards into (in place: the tasks never rebind
+        # them), listed once for the per-tick gathers, into kept buffers.
+        self._p_targets = [t.p_target for t in self.tasks]
+        self._costs = [t.cost for t in self.tasks]
+        self._ffs = [t.feedforward() for t in self.tasks]
+        self._p_target = np.empty(sum(a.shape[0] for a in self._p_targets))
+        self._cost = np.empty(r)
+        self._ff = np.empty(r)
         self._kernel = None
         if compiled and self.tasks:
             from services.solver import tick_kernel
@@ -82,19 +90,19 @@ class FrameRows:
         e = self._e
         for t, r, f in self._poses:
             e[r : r + 3] = pin.log3(t.R_target @ poses[f][1].T)
-        p_target = np.concatenate([t.p_target for t in tasks])
-        cost = np.concatenate([t.cost for t in tasks])
+        p_target = np.concatenate(self._p_targets, out=self._p_target)
+        cost = np.concatenate(self._costs, out=self._cost)
+        ff = np.concatenate(self._ffs, out=self._ff)
         if self._kernel is not None:
             self._kernel.frame_rows(
                 e, p_target, self._p, self._pos_rows, self._pos_src, np.array([t.gain for t in tasks]),
-                self._row_task, np.concatenate([t.feedforward() for t in tasks]), cost, self._J, self._src, self.dst,
-                A_all, b_all,
+                self._row_task, ff, cost, self._J, self._src, self.dst, A_all, b_all,
             )  # fmt: skip
             return
         e[self._pos_rows] = p_target - self._p[self._pos_src]
         # The tasks' own steps (``Task._fill_b``): the same operations in the same order, the same bits.
         b = e * np.array([t.gain for t in tasks])[self._row_task]
-        b += np.concatenate([t.feedforward() for t in tasks])
+        b += ff
         b *= cost
         b_all[self.dst] = b
         A_all[self.dst] = cost[:, None] * self._J[self._src]

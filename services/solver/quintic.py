@@ -102,6 +102,8 @@ class QuinticSmoother:
         self._dist = np.empty((2, n))  # distances to the stops below and above
         self._vmax_rows = False  # the velocity rows of _lo, _hi hold +-vmax (no braking bound tighter)
         self._bad = np.zeros(n, dtype=bool)  # joints out of their limits at the last check (compiled path)
+        self._infeasible = np.zeros(n, dtype=bool)  # of those, the ones the line search cannot save (compiled path)
+        self._p0_kept = np.zeros(n)  # their positions before the step (compiled path, for ``_clamp``)
         self._kernel = None
         if limits is not None:
             self._lo[0], self._hi[0] = limits.lower, limits.upper
@@ -183,18 +185,26 @@ class QuinticSmoother:
         p0, v0 = S[0], S[1]
         if self._kernel is not None:
             bad = self._bad
-            if not self._kernel.smoother_rows(
+            limited = self._kernel.smoother_rows(
                 y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim._two_over_a, BRAKE_DECEL, lo, hi, bad
-            ):
+            )
+            if not limited:
                 S[:3] = nxt
                 return 0
             self._limits_for = None  # the kernel wrote the rows the numpy path caches
             self._vmax_rows = False
-        else:
-            bad = self._smoother_rows(s)
-            if not bad.any():
-                S[:3] = nxt
+            # The line search compiled as well (``_line_search``'s steps); a joint it cannot save is clamped here.
+            self.limited = limited
+            infeasible = self._infeasible
+            if not self._kernel.line_search(S, y, lo, hi, self._K, bad, self.T, s, LAMBDA_SLACK, self._p0_kept,
+                                            infeasible):  # fmt: skip
                 return 0
+            idx = np.flatnonzero(infeasible)
+            return self._clamp(idx, self._p0_kept[idx], s)
+        bad = self._smoother_rows(s)
+        if not bad.any():
+            S[:3] = nxt
+            return 0
         return self._line_search(nxt, bad, s)
 
     def _smoother_rows(self, s: float) -> np.ndarray:
@@ -235,8 +245,8 @@ class QuinticSmoother:
 
     def _line_search(self, nxt: np.ndarray, bad: np.ndarray, s: float) -> int:
         """The next state nxt (3, n) with the segment end of each bad joint (n,) mask moved back along the line
-        until its limits hold (y's rows and their bounds filled by ``_smoother_rows`` or the kernel); returns the
-        joints clamped."""
+        until its limits hold (y's rows and their bounds filled by ``_smoother_rows``); returns the joints clamped.
+        The numpy reference of ``tick_kernel.line_search``."""
         S, y, lo, hi = self._S, self._Y, self._lo, self._hi
         p0, v0 = S[0], S[1]
         # Per bad joint: lambda in [0, 1] on the line from the keep-velocity end to the desired end.

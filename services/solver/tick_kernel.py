@@ -2,14 +2,15 @@
 
 Why compiled: the frame tasks' rows (``FrameRows``: ``A = W J``, ``b = W (v_ff + gain e)`` of every wrist
 and elbow task), the range centring's weights and rows (``RangeCentringTask``), ``JointBounds.compute``
-(the box every level is solved in) and the smoother's limit check (``QuinticSmoother``: six limited
+(the box every level is solved in), the clip and integration of the solution (``SolverCore``) and the
+smoother's limit check (``QuinticSmoother``: six limited
 quantities of the next state against their bounds) are 10 to 25 numpy calls each on vectors of 5 to 40
 elements a tick: a microsecond of call overhead each for a few hundred flops. Here one loop does each.
 Every element goes through the numpy path's operations in the same order, so the results are the same
 bits; the numpy paths stay the readable references and the tests hold these kernels to them
-(``tests/solver/test_frame_rows.py``, ``test_centring.py``, ``test_bounds.py``, ``test_quintic.py``). A
-tick with a joint out of the smoother's limits still takes the numpy line search
-(``QuinticSmoother._line_search``).
+(``tests/solver/test_frame_rows.py``, ``test_centring.py``, ``test_bounds.py``, ``test_quintic.py``,
+``test_core.py``). A tick with a joint out of the smoother's limits takes the compiled line search too; only a
+joint no segment end keeps within its limits takes the numpy clamp (``QuinticSmoother._clamp``).
 
 In the box and the smoother's check, far from both stops the braking bound exceeds vmax, so the numpy paths
 skip it there (``braking_free``); here it is always computed: intersected before the clamp to +-vmax, a
@@ -87,6 +88,75 @@ def smoother_rows(y, p0, v0, s, lower, upper, vmax, amax, two_over_a, decel, lo,
 
 
 @njit(cache=True)
+def line_search(S, y, lo, hi, K, bad, T, s, slack, p0_kept, infeasible):
+    """``QuinticSmoother._line_search``: the next state with each bad joint's segment end moved back along the line
+    from the keep-velocity end until its limits hold.
+
+    Args:
+        S: (5, n) the smoother's state p, v, a and segment end p1, v1: rows 0-2 set to the next state (y's rows
+            0-2, moved back for the bad joints), rows 3-4 moved back for the bad joints.
+        y, lo, hi: (6, n) the limited quantities of the desired next state and their bounds (``smoother_rows``).
+        K: (3, 5) the propagator of step s [s]. bad: (n,) the joints out of their limits. T: horizon [s].
+        slack: ``LAMBDA_SLACK``. p0_kept: (n,) written for the bad joints: their position before the step.
+        infeasible: (n,) written: the bad joints no lambda puts within their limits (to be clamped).
+
+    Returns:
+        the number of infeasible joints.
+    """
+    count = 0
+    for j in range(S.shape[1]):
+        infeasible[j] = False
+        if not bad[j]:
+            for r in range(3):
+                S[r, j] = y[r, j]
+            continue
+        p0 = S[0, j]
+        v0 = S[1, j]
+        p0_kept[j] = p0
+        dp1 = S[3, j] - (p0 + v0 * T)
+        dv1 = S[4, j] - v0
+        d0 = K[0, 3] * dp1 + K[0, 4] * dv1
+        d1 = K[1, 3] * dp1 + K[1, 4] * dv1
+        d2 = K[2, 3] * dp1 + K[2, 4] * dv1
+        lam_hi = np.inf
+        lam_lo = -np.inf
+        for r in range(5):
+            dy = d0 if r == 0 or r == 3 else (d1 if r == 1 or r == 4 else d2)
+            up, down = _lambda_range(y[r, j] - dy, dy, lo[r, j], hi[r, j])
+            lam_hi = min(lam_hi, up)
+            lam_lo = max(lam_lo, down)
+        # The look-ahead row only where it is compatible with the limits proper.
+        dy = d1 + 0.5 * s * d2
+        ahead_hi, ahead_lo = _lambda_range(y[5, j] - dy, dy, lo[5, j], hi[5, j])
+        if max(lam_lo, ahead_lo) <= min(lam_hi, ahead_hi):
+            lam_lo = max(lam_lo, ahead_lo)
+            lam_hi = min(lam_hi, ahead_hi)
+        lam = min(max(1.0, lam_lo), max(lam_hi, lam_lo))
+        if not lam_lo <= lam_hi + slack:
+            lam = 0.0
+            infeasible[j] = True
+            count += 1
+        back = 1.0 - lam
+        S[0, j] = y[0, j] - d0 * back
+        S[1, j] = y[1, j] - d1 * back
+        S[2, j] = y[2, j] - d2 * back
+        S[3, j] -= dp1 * back
+        S[4, j] -= dv1 * back
+    return count
+
+
+@njit(cache=True)
+def _lambda_range(y0: float, dy: float, lo: float, hi: float) -> tuple[float, float]:
+    """``quintic._interval`` of one row: (up, down) with lo <= y0 + lam dy <= hi for lam in [down, up]; up = -inf
+    when lam does not move the row and it is out of its bounds."""
+    if dy > 0:
+        return (hi - y0) / dy, (lo - y0) / dy
+    if dy < 0:
+        return (lo - y0) / dy, (hi - y0) / dy
+    return (-np.inf if dy == 0 and (y0 < lo or y0 > hi) else np.inf), -np.inf
+
+
+@njit(cache=True)
 def velocity_box(q, qd_prev, dt, lower, upper, vmax, amax, two_over_a, window, w_lo, w_hi, lb, ub):
     """``JointBounds.compute``: the box lb, ub (n,) [rad/s] (written) for a step dt [s] from q (n,) [rad] moving
     at qd_prev (n,) [rad/s], within the limits lower, upper, vmax, amax (n,) (two_over_a: ``2 / amax``) and,
@@ -133,6 +203,28 @@ def frame_rows(e, p_target, p, pos_rows, pos_src, gain, row_task, ff, cost, J, s
 
 
 @njit(cache=True)
+def clip_and_integrate(qd, lb, ub, dt, lower, upper, q, qd_out):
+    """``SolverCore._checked_velocity`` then ``_integrate``: qd (n,) [rad/s] clipped into [lb, ub] into qd_out, and
+    q (n,) [rad] advanced by ``qd_out dt`` [s] and clipped into [lower, upper] (both written in place).
+
+    Returns:
+        the largest ``|qd_out - qd|`` [rad/s] (the safety clamp's size); -1 when qd has a non-finite element,
+        and then nothing is written (the caller brakes instead).
+    """
+    n = qd.shape[0]
+    for j in range(n):
+        if not math.isfinite(qd[j]):
+            return -1.0
+    worst = 0.0
+    for j in range(n):
+        c = min(max(qd[j], lb[j]), ub[j])
+        worst = max(worst, abs(c - qd[j]))
+        qd_out[j] = c
+        q[j] = min(max(q[j] + c * dt, lower[j]), upper[j])
+    return worst
+
+
+@njit(cache=True)
 def centring_weights(q, joints, lower, upper, span, band, peak, cost):
     """``RangeCentringTask.update``: the weights cost (k,) of the joints ``q[joints]`` [rad] from their stops
     lower, upper (k,) [rad] (span: upper - lower): 0 beyond the band, ``peak`` at a stop."""
@@ -171,6 +263,10 @@ def warm_up() -> None:
     centring_weights(np.zeros(1), i1, -one, one, 2.0 * one, 0.25, 3.0, np.zeros(1))
     centring_rows(np.zeros(1), i1, -one, one, 20.0, np.zeros(1), one, np.ones((1, 1)), np.zeros(1), np.zeros((1, 1)),
                   np.zeros(1))  # fmt: skip
+    b1 = np.ones(1, dtype=np.bool_)
+    line_search(np.zeros((5, 1)), np.zeros((6, 1)), -np.ones((6, 1)), np.ones((6, 1)), np.zeros((3, 5)), b1, 0.008,
+                0.002, 1e-12, np.zeros(1), b1.copy())  # fmt: skip
+    clip_and_integrate(np.zeros(1), -one, one, 0.002, -one, one, np.zeros(1), np.zeros(1))
     for window in (False, True):
         velocity_box(np.zeros(1), np.zeros(1), 0.002, -one, one, one, one, 2.0 * one, window, -one, one,
                      np.zeros(1), np.zeros(1))  # fmt: skip

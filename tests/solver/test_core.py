@@ -258,3 +258,47 @@ def test_bad_configuration_is_rejected(robot17):
     core = SolverCore(robot17, SolverConfig())
     with pytest.raises(ValueError, match="measured q"):
         core.step(None, np.zeros(3), 0.0)
+
+
+def test_compiled_clip_and_integration_give_the_numpy_steps_bits(robot17):
+    """``SolverCore._advance_raw`` through the tick kernel against the numpy steps it replaces
+    (``_checked_velocity``, ``_integrate``): the same q_raw, qd_raw, reasons and counts, bit for bit, on
+    solutions inside the box, past it (safety clamps), past the position limits, and not finite."""
+    from services.solver.base import Solution
+
+    robot = robot17
+    fast, ref = SolverCore(robot, SolverConfig()), SolverCore(robot, SolverConfig())
+    ref._kernel = None
+    assert fast._kernel is not None
+    rng = np.random.default_rng(3)
+    n = robot.nq
+    clamped = stopped = failed = 0
+    for k in range(3000):
+        q = robot.lower + rng.uniform(-0.01, 1.01, n) * (robot.upper - robot.lower)
+        qd0 = rng.uniform(-1.0, 1.0, n) * robot.vmax
+        dt = rng.uniform(0.5, 2.0) * DT
+        lb, ub = ref.bounds.compute(q, qd0, dt)  # the box a failed solve brakes in (each core its own)
+        lb, ub = fast.bounds.compute(q, qd0, dt)
+        qd = np.clip(qd0 + rng.uniform(-0.5, 0.5, n) * fast.bounds.amax * dt, lb, ub)
+        if k % 3 == 0:  # past the box by up to 1e-8 rad/s on a few joints: a safety clamp or round-off
+            qd += rng.uniform(-1e-8, 1e-8, n) * (rng.random(n) < 0.3)
+        if k % 97 == 0:
+            qd[rng.integers(n)] = np.nan
+        results = []
+        for core in (fast, ref):
+            core.q_raw[:] = q
+            core.qd_raw[:] = qd0
+            out, reason = core._advance_raw(Solution(qd.copy(), reason="r" if k % 2 else ""), lb, ub, dt)
+            results.append((None if out is None else out.copy(), reason, core.q_raw.copy(), core.qd_raw.copy()))
+        (a, ra, qa, va), (b, rb, qb, vb) = results
+        assert (a is None) == (b is None) and ra == rb
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(qa, qb)
+        np.testing.assert_array_equal(va, vb)
+        failed += a is None
+        stopped += a is not None and bool(np.any((q + a * dt < fast.bounds.lower) | (q + a * dt > fast.bounds.upper)))
+    assert fast.counts == ref.counts
+    clamped = fast.counts["safety_clamps"]
+    # Every branch ran: clamped and not, held at a position stop, failed.
+    assert 100 < clamped < 1000 and stopped > 100 and failed == 31

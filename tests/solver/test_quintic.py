@@ -151,7 +151,8 @@ def test_limiter_brakes_before_a_stop(limits):
 def test_compiled_limit_check_gives_the_numpy_paths_bits():
     """The compiled limit check (``tick_kernel``) against the numpy rows it replaces, on violent raw input at
     random step lengths and joints of different limits: the same state, bit for bit, every step, through ticks
-    far from the stops, braking before them and with segment ends moved by the line search."""
+    far from the stops, braking before them, with segment ends moved by the (compiled) line search and with
+    joints it cannot save clamped."""
     n = 6
     rng = np.random.default_rng(5)
     lower, upper = -rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 2.0, n)
@@ -163,17 +164,19 @@ def test_compiled_limit_check_gives_the_numpy_paths_bits():
         sm.reset(np.zeros(n))
     raw_bounds = JointBounds(lim.lower, lim.upper, RAW_VMAX_FRACTION * lim.vmax, RAW_AMAX_FRACTION * lim.amax)
     q, qd = np.zeros(n), np.zeros(n)
-    limited = free = 0
+    limited = free = clamped = 0
     for k, s in enumerate(rng.uniform(0.25, 2.0, 3000) * DT):
         # Mostly between the stops (free velocity rows), in bursts at them (braking rows).
         target = (1.2 if (k // 500) % 2 else 0.5) * lim.upper * np.sign(np.sin(k / 80.0 + np.arange(n)))
         lb, ub = raw_bounds.compute(q, qd, s)
         qd = np.clip(200.0 * (target - q) + 20.0 * rng.standard_normal(n), lb, ub)
         q = np.clip(q + qd * s, lim.lower, lim.upper)
-        assert fast.step(q, qd, s) == ref.step(q, qd, s)
+        c = fast.step(q, qd, s)
+        assert c == ref.step(q, qd, s)
         assert fast.limited == ref.limited
+        clamped += c > 0
         np.testing.assert_array_equal(fast._S, ref._S)
         limited += fast.limited > 0
         free += ref._vmax_rows
-    # Both branches of the velocity rows and the line search were exercised.
-    assert 100 < limited < 2900 and 100 < free < 2900
+    # Both branches of the velocity rows, the line search and its last-resort clamp were exercised.
+    assert 100 < limited < 2900 and 100 < free < 2900 and 10 < clamped < limited
