@@ -16,6 +16,7 @@ import pytest
 import zenoh
 from conftest import make_frame
 
+from services.retarget import node as node_module
 from services.retarget.calibration import anthropometric
 from services.retarget.node import RetargetNode
 from services.retarget.retargeter import RetargetConfig, Retargeter
@@ -42,7 +43,11 @@ def _collect(q: queue.Queue, n: int, timeout: float) -> list[TaskTargets]:
     return out
 
 
-def test_node_retargets_every_frame_and_serves_calibration(router, robot14, workspace, tmp_path):
+def test_node_retargets_every_frame_and_serves_calibration(router, robot14, workspace, tmp_path, monkeypatch):
+    # The node runs inside the test process (the whole suite's heap and threads): once in CI its worker stalled
+    # past FRAME_MAX_AGE (0.1 s) mid-burst and skipped frames 17-19 as stale, as designed. That policy has its own
+    # test (test_bus_drops); this one checks that every frame comes through, so a stall must not count.
+    monkeypatch.setattr(node_module, "FRAME_MAX_AGE", 2.0)
     keys = Keys("rt_node")
     args = bus_args(connect=[router], session="rt_node", status_period=0.2)
     r = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
