@@ -59,7 +59,8 @@ class JointBounds:
         if not (np.all(self.vmax > 0) and np.all(self.amax > 0) and np.all(np.isfinite(self.vmax + self.amax))):
             raise ValueError("velocity and acceleration limits must be finite and > 0")
         self._neg_vmax = -self.vmax
-        self._two_over_a = 2.0 / self.amax
+        #: (n,) 2 / amax [s^2/rad], the braking bound's factor (also read by the smoother's compiled check)
+        self.two_over_a = 2.0 / self.amax
         self.lb = np.empty(n)
         self.ub = np.empty(n)
         self._t = np.empty(n)
@@ -97,7 +98,7 @@ class JointBounds:
         if self._kernel is not None:
             w_lo, w_hi = (lb, ub) if window is None else window  # (lb, ub): unread placeholders
             self._kernel.velocity_box(
-                q, qd_prev, dt, self.lower, self.upper, self.vmax, self.amax, self._two_over_a, window is not None,
+                q, qd_prev, dt, self.lower, self.upper, self.vmax, self.amax, self.two_over_a, window is not None,
                 w_lo, w_hi, lb, ub,
             )  # fmt: skip
             return lb, ub
@@ -159,7 +160,7 @@ class JointBounds:
         for a stop below q (the negated speed). ``decel``: the fraction of a_max the braking may use.
         """
         d = np.maximum(distance, 0.0)
-        d *= self._two_over_a
+        d *= self.two_over_a
         if decel != 1.0:
             d /= decel
         d += dt * dt

@@ -93,7 +93,7 @@ class QuinticSmoother:
         self._K = np.zeros((3, 5))
         #: (3, 6) p, v, a rows of the monomials s^0..s^5 at the last step (``propagator``; constants set here)
         self._P = np.zeros((3, 6))
-        self._P[0, 0] = self._P[1, 1] = self._P[2, 2] = 1.0
+        self._P[0, 0] = self._P[1, 1] = 1.0
         self._P[2, 2] = 2.0
         self._Y = np.zeros((6, n))  # limited quantities of the next state (see _limit)
         self._lo = np.zeros((6, n))
@@ -186,7 +186,7 @@ class QuinticSmoother:
         if self._kernel is not None:
             bad = self._bad
             limited = self._kernel.smoother_rows(
-                y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim._two_over_a, BRAKE_DECEL, lo, hi, bad
+                y, p0, v0, s, lim.lower, lim.upper, lim.vmax, lim.amax, lim.two_over_a, BRAKE_DECEL, lo, hi, bad
             )
             if not limited:
                 S[:3] = nxt
