@@ -13,7 +13,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from services.evaluation.metrics import REACHABLE_TOL, compare, reachable_mask, summarise, trace_metrics
-from services.evaluation.mink_peer import MINK, MinkMissingError, require_mink
+from services.evaluation.mink_peer import PEERS, MinkMissingError, require_mink
 from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
 from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_retarget, run_algorithm
 from services.ingest.errors import ClipError
@@ -36,7 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--algos",
         default="hqp-nullspace,hqp-original,wqp",
-        help=f"comma list of {[*sorted(ALGORITHMS), MINK]} (mink: the peer, mink.solve_ik on the same targets)",
+        help=f"comma list of {[*sorted(ALGORITHMS), *PEERS]} (mink: the peer, mink.solve_ik on the same targets; "
+        "mink-limited: the same, its velocities clipped into our solvers' position/velocity/acceleration box)",
     )
     p.add_argument(
         "--skeleton-map", default=None, help="BVH skeleton map / C3D marker map file (TOML/JSON), as mimic publish"
@@ -218,10 +219,10 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     level 2 (the elbow pose) and eq. 4 against the rest pose. The retargeter otherwise runs with the
     service's own settings (``RetargetConfig``)."""
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGORITHMS and a != MINK]
+    unknown = [a for a in algos if a not in ALGORITHMS and a not in PEERS]
     if unknown:
-        raise SystemExit(f"unknown algorithms {unknown}; known: {[*sorted(ALGORITHMS), MINK]}")
-    if MINK in algos:
+        raise SystemExit(f"unknown algorithms {unknown}; known: {[*sorted(ALGORITHMS), *PEERS]}")
+    if any(a in PEERS for a in algos):
         try:
             require_mink()
         except MinkMissingError as exc:

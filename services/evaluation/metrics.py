@@ -114,6 +114,19 @@ def limit_violations(trace: Trace, robot: RobotModel, tol: float = 1e-9) -> int:
     return int(pos.sum() + vel.sum())
 
 
+def acceleration_violations(trace: Trace, robot: RobotModel, rel_tol: float = 1e-6) -> int:
+    """Count of (tick, joint) pairs whose commanded velocity changed by more than ``a_max dt`` since the tick before.
+
+    ``limit_violations`` counts positions and velocities only; a command may meet both and still ask a motor
+    for more acceleration than it has (``RobotModel.amax``, the limit our solvers plan within).
+    """
+    if len(trace.t) < 2:
+        return 0
+    dqd = np.abs(np.diff(trace.qd, axis=0))
+    step = robot.amax[None, :] * np.diff(trace.t)[:, None]
+    return int(np.sum(dqd > step * (1.0 + rel_tol) + 1e-9))
+
+
 def reachable_mask(reference: Trace) -> np.ndarray:
     """Ticks where the strict hierarchy met the wrist level."""
     return np.nan_to_num(reference.res1, nan=np.inf) < REACHABLE_TOL
@@ -149,6 +162,7 @@ def trace_metrics(
             "p99": float(np.percentile(trace.solve_ms, 99)),
         },
         "limit_violations": limit_violations(trace, robot),
+        "acceleration_violations": acceleration_violations(trace, robot),
         "ticks": len(trace.t),
         "status_counts": {s: int(c) for s, c in zip(*np.unique(trace.status, return_counts=True))},
         "qp_fallbacks": int(trace.counts.get("qp_fallbacks", 0)),
@@ -226,7 +240,7 @@ def summarise(per_clip: list[dict]) -> dict:
                 s[key] = {k: float(np.mean([v[k] for v in vals])) for k in ("mean", "p50", "p99")}
             elif isinstance(vals[0], int | float) and not isinstance(vals[0], bool):
                 nums = [v for v in vals if isinstance(v, int | float)]
-                if key in ("limit_violations", "ticks", "self_collisions", "qp_fallbacks"):
+                if key in ("limit_violations", "acceleration_violations", "ticks", "self_collisions", "qp_fallbacks"):
                     s[key] = float(np.sum(nums))
                 elif key in ("stuck_s",):
                     s[key] = float(np.max(nums))
@@ -238,7 +252,7 @@ def summarise(per_clip: list[dict]) -> dict:
                 else:
                     s[key] = float(np.mean(nums))
         s["limit_violations"] = int(s.get("limit_violations", 0))
-        for key in ("self_collisions", "qp_fallbacks"):
+        for key in ("acceleration_violations", "self_collisions", "qp_fallbacks"):
             if key in s:
                 s[key] = int(s[key])
         out[a] = s

@@ -9,6 +9,12 @@ FrameTasks, a posture task towards the rest pose, and mink's ConfigurationLimit 
 limit margin) and VelocityLimit (the profile's joint speed cap). Its commands are scored exactly
 like ours.
 
+"mink-limited" is the same peer held to the limits our solvers plan within: each tick its joint velocities
+are clipped into the :class:`~services.solver.bounds.JointBounds` box of the robot's position (with braking),
+velocity and acceleration limits before they are integrated. mink itself has no acceleration limit, so plain
+"mink" may command steps no motor makes (``acceleration_violations`` in the eval JSON counts them); the
+limited peer compares the two methods at equal limits.
+
 mink is an optional dependency (the ``eval`` and ``dev`` extras); :func:`require_mink` turns its
 absence into a one-line error.
 """
@@ -19,6 +25,7 @@ import time
 
 import numpy as np
 
+from services.solver.bounds import JointBounds
 from services.solver.core import SolverConfig
 from services.solver.targets import TargetTracker
 from shared.messages import TARGET_NAMES, Header, JointCommand, TaskTargets
@@ -26,6 +33,10 @@ from shared.robot.pinocchio_model import RobotModel
 
 #: Algorithm name of the peer in ``mimic eval --algos``.
 MINK = "mink"
+#: The peer with its velocities clipped into our solvers' limit box.
+MINK_LIMITED = "mink-limited"
+#: Every peer name ``mimic eval --algos`` takes.
+PEERS = (MINK, MINK_LIMITED)
 
 
 class MinkMissingError(RuntimeError):
@@ -49,9 +60,11 @@ class MinkPeer:
         robot: reduced Pinocchio model whose joints are commanded (their order is the command's).
         rate: control rate [Hz].
         solver: qpsolvers backend name for ``mink.solve_ik``.
+        limited: clip mink's joint velocities into the position/velocity/acceleration box of ``robot``
+            (``JointBounds``) before integrating ("mink-limited").
     """
 
-    def __init__(self, robot: RobotModel, rate: float = 500.0, solver: str = "daqp"):
+    def __init__(self, robot: RobotModel, rate: float = 500.0, solver: str = "daqp", limited: bool = False):
         mink = require_mink()
         from shared.robot.mujoco_model import build_mujoco_robot
 
@@ -94,6 +107,9 @@ class MinkPeer:
         ]
         self.qpos_idx = mj.qpos_idx
         self.dof_idx = mj.dof_idx
+        #: the box of the limits our solvers keep (None: mink as users run it)
+        self.bounds = JointBounds(robot.lower, robot.upper, robot.vmax, robot.amax) if limited else None
+        self._qd_prev = np.zeros(len(robot.joint_names))
         self.q_rest = robot.q_rest.copy()
 
     def step(self, targets: TaskTargets | None, measured_q: np.ndarray | None, t: float) -> JointCommand:
@@ -115,6 +131,10 @@ class MinkPeer:
                 task.set_target(self.T_world_base @ T)
                 tasks.append(task)
             qd_all = mink.solve_ik(conf, tasks, self.dt, self.solver, limits=self.limits)
+            if self.bounds is not None:
+                lb, ub = self.bounds.compute(conf.q[self.qpos_idx], self._qd_prev, self.dt)
+                qd_all[self.dof_idx] = np.clip(qd_all[self.dof_idx], lb, ub)
+                self._qd_prev = qd_all[self.dof_idx].copy()
             conf.integrate_inplace(qd_all, self.dt)
             status = "ok"
         q = conf.q[self.qpos_idx].copy()
@@ -122,7 +142,7 @@ class MinkPeer:
         return JointCommand(
             hdr=self.tracker.hdr if self.tracker.started else Header(0, 0.0, 0),
             solver_id="eval",
-            algo=MINK,
+            algo=MINK_LIMITED if self.bounds is not None else MINK,
             joints=list(self.robot.joint_names),
             q=q,
             qd=qd,

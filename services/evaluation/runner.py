@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.evaluation.mink_peer import MINK, MinkPeer
+from services.evaluation.mink_peer import MINK_LIMITED, PEERS, MinkPeer
 from services.ingest.clip import Clip, load_clip
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
@@ -122,7 +122,10 @@ def run_algorithm(
         wrist_only: the solver gets the wrist targets only (:func:`wrist_only_targets`); errors are
             still measured against the full targets (the operator's retargeted elbows).
     """
-    core = MinkPeer(robot, rate) if algo == MINK else _solver_core(robot, algo, qp, rate, solver, wqp_weights)
+    if algo in PEERS:
+        core = MinkPeer(robot, rate, limited=algo == MINK_LIMITED)
+    else:
+        core = _solver_core(robot, algo, qp, rate, solver, wqp_weights)
     simcore = _sim_core(robot) if sim else None
     dt = 1.0 / rate
     coll = None

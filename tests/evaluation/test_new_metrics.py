@@ -12,7 +12,14 @@ import pytest
 
 from services.evaluation.cli import _settings, add_arguments, evaluate
 from services.evaluation.collisions import SelfCollision
-from services.evaluation.metrics import _stats, jerk_rms, stuck_seconds, summarise, trace_metrics
+from services.evaluation.metrics import (
+    _stats,
+    acceleration_violations,
+    jerk_rms,
+    stuck_seconds,
+    summarise,
+    trace_metrics,
+)
 from services.evaluation.reachability import IK_TOL, ArmIk, check_targets
 from services.evaluation.runner import load_and_retarget, run_algorithm
 from services.retarget.retargeter import RetargetConfig
@@ -115,6 +122,30 @@ def test_mink_peer_runs_when_a_target_is_never_valid(robot17):
     tr = run_algorithm(robot17, no_elbow, "mink", collisions=False)
     m = trace_metrics(tr, robot17)
     assert m["wrist_err_cm"]["mean"] < 0.5 and set(np.unique(tr.status)) == {"ok"}, m["wrist_err_cm"]
+
+
+def test_acceleration_violations_count_velocity_steps_above_amax_dt(robot17):
+    tr = synthetic_trace(robot17, {})
+    dt = float(tr.t[1] - tr.t[0])
+    a = robot17.amax
+    tr.qd[10:, 0] = 0.999 * a[0] * dt  # one step just inside the limit: not counted
+    tr.qd[50:, 1] = 1.01 * a[1] * dt  # one step just past it on another joint
+    tr.qd[80, 2], tr.qd[81, 2] = -2.0 * a[2] * dt, 0.0  # a spike: out past the limit and back
+    assert acceleration_violations(tr, robot17) == 3
+    assert trace_metrics(tr, robot17)["acceleration_violations"] == 3
+
+
+def test_mink_limited_keeps_our_acceleration_limit_where_mink_does_not(robot17):
+    """Targets that jump 5 cm (a marker swap): mink steps its joints at once, past a_max; the limited peer
+    brakes into the same box as our solvers and still reaches the targets."""
+    targets = fk_targets(robot17, np.arange(0.0, DURATION, 1.0 / RATE), {"left_wrist": np.array([0.05, 0.0, 0.0])})
+    raw = trace_metrics(run_algorithm(robot17, targets, "mink", collisions=False), robot17)
+    limited_tr = run_algorithm(robot17, targets, "mink-limited", collisions=False)
+    limited = trace_metrics(limited_tr, robot17)
+    assert raw["acceleration_violations"] > 0
+    assert limited["acceleration_violations"] == 0 and limited["limit_violations"] == 0
+    assert limited["wrist_err_cm"]["mean"] < 2.0 * raw["wrist_err_cm"]["mean"] + 0.1, (limited, raw)
+    assert set(np.unique(limited_tr.status)) == {"ok"}
 
 
 def test_summary_has_p99_of_the_worst_clip_and_sums_collisions(robot17):
