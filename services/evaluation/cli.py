@@ -113,6 +113,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="strict HQPs: trade a saturated wrist level against the lower levels at this weight (SolverConfig."
         "saturation_weight; default: SolverConfig's, 0 = off)",
     )
+    p.add_argument(
+        "--recovery",
+        choices=("on", "off"),
+        default=None,
+        help="strict HQPs: the lock-up recovery (SolverConfig.recovery; default: SolverConfig's)",
+    )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -242,6 +248,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     saturation = getattr(args, "saturation_weight", None)
     if saturation is not None:
         solver["saturation_weight"] = saturation
+    recovery = getattr(args, "recovery", None)
+    if recovery is not None:
+        solver["recovery"] = recovery == "on"
     collision = self_collision_choice(args)
     if collision is not None:
         solver["self_collision"] = collision

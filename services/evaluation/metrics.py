@@ -173,6 +173,8 @@ def trace_metrics(
         m["self_collision_source"] = "sim contacts" if sim else "kinematic clearance < 0"
         c = trace.clearance[np.isfinite(trace.clearance)]
         m["min_clearance_cm"] = float(cm * c.min()) if c.size else None
+    if trace.counts.get("recoveries"):  # lock-up recoveries the solver started (SolverConfig.recovery)
+        m["recoveries"] = int(trace.counts["recoveries"])
     ticks = trace.counts.get("policy_ticks", 0)
     if ticks:  # a posture policy ran: how often its gate sent an arm to the rest posture instead
         m["policy_ticks"] = int(ticks)

@@ -140,12 +140,12 @@ class SolverConfig:
         elbow_orientation_cost: weight [1/rad] of the elbow orientation rows, on level 2 beside the
             elbow positions (seed 000's elbow pose), used while the elbow targets carry
             ``use_rotation`` (retarget ``--elbow-rotation``; ``mimic eval --paper``).
-        recovery: lead an arm out of a lock-up (elbow far off while its wrist is tracked) through a
-            position-level IK posture, in the wrists' null space (``recovery.LockupRecovery``); strict
-            hierarchies only (hqp-nullspace, hqp-original), the others have no level to put it on.
-            Off by default: the range centring below keeps the arm out of the lock-up in the first place,
-            and the recovery's detours cost accuracy where nothing is locked (byebye_normal elbow mean
-            0.98 -> 2.3 cm, guide_normal 0.44 -> 4.7 cm: it also fires on the start-up transient).
+        recovery: lead an arm out of a lock-up (wrist tracked, elbow far off and not closing in, an arm joint at a
+            stop: ``recovery.RecoveryConfig``) through a position-level IK posture, in the wrists' null space
+            (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
+            no level to put it on. Off by default: with the shipped settings it never fires on the 25 clips (every
+            figure the same); with ``saturation_weight`` 2 it takes kick_normal out of its elbow-hyperextension
+            lock (elbow mean 5.4 -> 2.7 cm).
         range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
             stops on level 2, beside the elbows (``centring.RangeCentringTask``), strict hierarchies only
             (hqp-nullspace, hqp-original); 0 = off. It removes the wave-left-hand lock-up (elbow mean /
@@ -326,6 +326,7 @@ class SolverCore:
         )
         self._ineq: Inequalities | None = None
         self.recovery = LockupRecovery(robot) if cfg.recovery and cfg.algo in STRICT_ALGORITHMS else None
+        self._level1_met = False  # the last tick met the wrist level (the recovery's lock test)
         self.smoother = (
             QuinticSmoother(self.n, self.dt, cfg.smoothing_ticks, limits=self.limits) if cfg.smoothing else None
         )
@@ -350,6 +351,7 @@ class SolverCore:
             "qp_fallbacks": 0,  # QPs DAQP failed on and PIQP solved (see DaqpBackend.fallback)
             "policy_ticks": 0,
             "gate_closed": 0,
+            "recoveries": 0,  # lock-up recoveries started (``recovery.LockupRecovery``)
         }
 
     def _build_levels(self, cfg: SolverConfig) -> None:
@@ -672,10 +674,12 @@ class SolverCore:
         if self.centring_task is not None:
             self.centring_task.update(self.q_raw)
         if self.recovery is not None and self.recovery.update(
-            self.configuration, self.wrist_tasks, self.elbow_tasks, t
+            self.configuration, self.wrist_tasks, self.elbow_tasks, t, self._level1_met
         ):
             # Right below the wrists: the arm moves to the IK posture without touching level 1.
             levels = [levels[0], [self.recovery.task], *levels[1:]]
+        if self.recovery is not None:
+            self.counts["recoveries"] = self.recovery.events
         lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
         self.slow.fix(self.q_raw, self.qd_raw, lb, ub, self.bounds.amax, dt)
         ineq = self._ineq = self._collision_rows(lb, ub)
@@ -689,6 +693,7 @@ class SolverCore:
         self.counts["qp_fallbacks"] = getattr(getattr(self.algorithm, "backend", None), "fallbacks", 0)
         qd, reason = self._advance_raw(sol, lb, ub, dt)
         status, reason = self._status(qd, sol, held, reason)
+        self._level1_met = bool(sol.ok and sol.residuals and sol.residuals[0] <= self.config.infeasible_tol)
         self._publish_state(qd, dt)
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 

@@ -1,20 +1,27 @@
 """Lock-up recovery: leave a wrong posture the velocity-level hierarchy cannot leave by itself.
 
-A strict velocity-level HQP is a local method: when an arm reaches its wrist target with joints
-pinned at their limits (the wave-left-hand clips at 7 s: shoulder roll and yaw at their stops),
-the elbow level's own gradient points into those stops, and the only freedom left to hold the
-wrist is the waist, which swings across its range while the elbow error grows to 30 cm. The
-elbow target is reachable with the wrist target all along, from another arm posture.
+A strict velocity-level HQP is a local method: it can reach its wrist target with the arm on a branch from which
+no velocity that keeps the wrist brings the elbow closer, because a joint stop blocks the way. Two such locks are
+known. On the wave-left-hand clips at 7 s the shoulder roll and yaw sit at their stops and the waist swings across
+its range while the elbow error grows to 30 cm (the range centring keeps the arm out of that one). On
+kick_normal, after the fast kicks, the right elbow ends past straight at its hyperextension stop (2.07 rad, the
+straight arm is at ~1.3-1.4 rad) with the waist roll and pitch far out: the wrist target is near, and on this
+branch the arm can only shorten by extending the elbow further (blocked) or by the waist bringing the shoulder
+back (which the blocked elbow cannot follow); the folded branch the elbow target asks for lies past the straight
+arm, which the wrist first has to lengthen through. The elbow level's gradient cannot do that: 9-14 cm of elbow
+error for seconds, with level 1 met on 98-100 % of the ticks.
 
-Recovery, per arm: when its elbow (level 2) stays more than ``trigger_error`` off for
-``trigger_time`` while the wrist is tracked, a position-level IK (damped Gauss-Newton on that
-arm's wrist and elbow positions, over the arm's joints and the waist, pulled towards the rest
-pose in its null space) looks for a posture meeting both targets. If it finds one, a joint-space
-task towards it joins the hierarchy right below the wrists: the arm moves to it inside the
-wrists' null space, within the joint bounds (velocity, acceleration, self-collision), so level 1
-keeps its strict priority; the elbow level follows below. The IK posture is refreshed as the
-targets move, and the recovery ends when the elbow is back within ``release_error`` or after
-``max_time``.
+Recovery, per arm, only on such a lock: over ``trigger_time`` the wrist level is met on most ticks and the wrist
+within ``wrist_tolerance``, the elbow more than ``trigger_error`` off, one of the arm's joints within
+``stop_margin`` of a stop, and the elbow error has not fallen by ``min_progress``. A speed-saturated tick (the
+wrists behind their targets at the joints' speed limit, the vigorous clips) or an elbow still closing in does not
+fire it. Then a position-level IK (damped Gauss-Newton on that arm's wrist and elbow positions, over the arm's
+joints and the waist, started from the rest pose and pulled towards it in its null space) looks for a posture
+meeting both targets. If it finds one, a joint-space task towards it joins the hierarchy right below the wrists: the
+arm moves to it inside the wrists' null space, within the joint bounds (velocity, acceleration, self-collision), so
+level 1 keeps its strict priority; the elbow level follows below. The IK posture is refreshed as the targets move,
+and the recovery ends when the elbow is back within ``release_error``, the arm within ``release_distance`` of the IK
+posture, or after ``max_time``.
 """
 
 from __future__ import annotations
@@ -35,10 +42,20 @@ class RecoveryConfig:
 
     Attributes:
         trigger_error: elbow error [m] that counts as off.
-        trigger_time: how long [s] the elbow must stay off before recovering.
+        trigger_time: how long [s] the elbow must stay off (with the wrist tracked and a joint at a stop)
+            without closing in before recovering.
+        min_progress: the elbow error [m] must fall by less than this over ``trigger_time`` to count as locked.
+        stop_margin: a joint this close [rad] to a limit counts as at its stop (the solver keeps 0.01 rad of
+            headroom, and braking holds a joint a little further off).
+        met_fraction: the share of the window's ticks on which the wrist level must have been met (a wrist near its
+            target but behind a fast one at the joints' speed limit misses it on most ticks; a locked arm on a few).
         wrist_tolerance: the wrist error [m] under which the wrist counts as tracked (a recovery
-            only starts from a tracked wrist: otherwise level 1 itself is the problem).
+            only starts from a tracked wrist: otherwise level 1 itself is the problem, e.g. the wrists behind
+            fast targets at the joints' speed limit).
         release_error: elbow error [m] that ends a recovery.
+        release_distance: a recovery also ends when every joint of the arm is this close [rad] to the IK posture:
+            the arm is on the IK's branch, where the elbow level closes the rest by itself (the joint-space task
+            would hold the elbow at the IK posture's error, refreshed only every ``refresh_time``).
         max_time: longest recovery [s].
         refresh_time: the IK posture is recomputed this often [s] during a recovery.
         gain: the joint-space task's gain [1/s].
@@ -47,10 +64,14 @@ class RecoveryConfig:
     """
 
     trigger_error: float = 0.05
-    trigger_time: float = 0.02
-    wrist_tolerance: float = 0.02
+    trigger_time: float = 0.1
+    min_progress: float = 0.01
+    stop_margin: float = 0.05
+    met_fraction: float = 0.8
+    wrist_tolerance: float = 0.01
     release_error: float = 0.015
-    max_time: float = 1.0
+    release_distance: float = 0.15
+    max_time: float = 1.5
     refresh_time: float = 0.04
     gain: float = 20.0
     ik_iterations: int = 40
@@ -60,6 +81,10 @@ class RecoveryConfig:
 @dataclass
 class _ArmState:
     off_since: float | None = None
+    off_error: float = 0.0  # elbow error [m] when off_since was set
+    next_try: float = -np.inf  # [s] after an IK that found no posture, the next attempt
+    ticks: int = 0  # ticks since off_since
+    met: int = 0  # of which the wrist level was met
     active_since: float | None = None
     refreshed: float = -np.inf
     q_ik: np.ndarray | None = None
@@ -104,12 +129,14 @@ class LockupRecovery:
         wrist_tasks: list[Task],
         elbow_tasks: list[Task],
         t: float,
+        level1_met: bool = True,
     ) -> bool:
         """Detect lock-ups at solver time t [s] and set the joint-space task; True while one is active.
 
         Args:
             conf: configuration at this tick (kinematics up to date).
             wrist_tasks, elbow_tasks: the position tasks per side (``SIDES`` order), targets set.
+            level1_met: the previous tick met the wrist level (``met_fraction``).
         """
         cfg = self.config
         for side, wt, et in zip(SIDES, wrist_tasks, elbow_tasks):
@@ -117,7 +144,8 @@ class LockupRecovery:
             e_el = float(np.linalg.norm(et.p_target - conf.get_frame_pose(et.frame)[0]))
             e_wr = float(np.linalg.norm(wt.p_target - conf.get_frame_pose(wt.frame)[0]))
             if st.active_since is not None:
-                if e_el < cfg.release_error or t - st.active_since > cfg.max_time:
+                near = np.max(np.abs(conf.q[self.arm_joints[side]] - st.q_ik[self.arm_joints[side]]))
+                if e_el < cfg.release_error or near < cfg.release_distance or t - st.active_since > cfg.max_time:
                     st.active_since = None
                     st.off_since = None
                     continue
@@ -127,10 +155,17 @@ class LockupRecovery:
                         st.q_ik = q
                     st.refreshed = t
                 continue
-            if e_el > cfg.trigger_error and e_wr < cfg.wrist_tolerance:
+            if e_el > cfg.trigger_error and e_wr < cfg.wrist_tolerance and self.at_stop(conf.q, side):
                 if st.off_since is None:
-                    st.off_since = t
-                elif t - st.off_since >= cfg.trigger_time:
+                    st.off_since, st.off_error, st.ticks, st.met = t, e_el, 0, 0
+                st.ticks += 1
+                st.met += level1_met
+                if t - st.off_since < cfg.trigger_time or t < st.next_try:
+                    pass
+                elif e_el < st.off_error - cfg.min_progress or st.met < cfg.met_fraction * st.ticks:
+                    # still closing in by itself, or the wrists mostly behind their targets (saturated): not a lock
+                    st.off_since, st.off_error, st.ticks, st.met = t, e_el, 0, 0
+                else:
                     seed = conf.q.copy()
                     seed[self.ik_joints[side]] = self.robot.q_rest[self.ik_joints[side]]
                     q = self._ik(seed, side, wt.p_target, et.p_target)
@@ -139,7 +174,7 @@ class LockupRecovery:
                         st.events += 1
                         st.history.append(t)
                     else:
-                        st.off_since = t  # no better posture exists: try again later
+                        st.next_try = t + cfg.refresh_time  # no posture meets both targets (yet): try again soon
             else:
                 st.off_since = None
         active = self.active
@@ -153,6 +188,12 @@ class LockupRecovery:
                 target[idx] = self.state[side].q_ik[idx]
             self.task.set_target(target)
         return bool(active)
+
+    def at_stop(self, q: np.ndarray, side: str) -> bool:
+        """True when one of this side's arm joints (q (n,) [rad]) is within ``stop_margin`` of a limit (the waist is
+        left out: it sits near its stops on most vigorous ticks, locked or not)."""
+        idx, m = self.arm_joints[side], self.config.stop_margin
+        return bool(np.any((q[idx] - self.robot.lower[idx] < m) | (self.robot.upper[idx] - q[idx] < m)))
 
     def _ik(self, seed: np.ndarray, side: str, p_wrist: np.ndarray, p_elbow: np.ndarray) -> np.ndarray | None:
         """A posture (n,) [rad] within the limits placing this side's wrist and elbow at their targets, or None."""

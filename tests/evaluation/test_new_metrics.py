@@ -171,11 +171,14 @@ def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
     retarget = _settings(args)[3]  # what the retargeter is built with
     assert retarget["elbow_placement"] == cfg.elbow_placement
     assert retarget["orientation_reference"] == cfg.orientation_reference and retarget["mode"] == cfg.mode
-    # self-collision: the solver's default unless --self-collision on|off says otherwise
-    assert "self_collision" not in _settings(args)[1]
+    # self-collision and the lock-up recovery: the solver's defaults unless --self-collision / --recovery on|off
+    # say otherwise
+    assert "self_collision" not in _settings(args)[1] and "recovery" not in _settings(args)[1]
     for flag in ("on", "off"):
         solver = _settings(_args(["x.bvh", "--json", "o.json", "--self-collision", flag]))[1]
         assert solver["self_collision"] is (flag == "on")
+        solver = _settings(_args(["x.bvh", "--json", "o.json", "--recovery", flag]))[1]
+        assert solver["recovery"] is (flag == "on")
 
 
 def _renamed_rig(src, dst) -> None:

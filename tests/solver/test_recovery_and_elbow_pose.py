@@ -33,15 +33,20 @@ def _longest(bad: np.ndarray, dt: float) -> float:
     return best * dt
 
 
-def _wave_runs(robot, variants: dict[str, dict]) -> dict[str, tuple[float, float, float]]:
-    """variant -> (longest run [s] of the left elbow > 10 cm off, its max [cm], left wrist p99 [cm])."""
+def _wave_runs(robot, variants: dict[str, dict]) -> dict[str, tuple[float, float, float, int]]:
+    """variant -> (longest run [s] of the left elbow > 10 cm off, its max [cm], left wrist p99 [cm], recoveries)."""
     targets = clip_targets_until(WAVE, robot, UNTIL)
     out = {}
     for name, solver in variants.items():
         tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", sim=False, solver=solver, collisions=False)
         el = 100 * np.linalg.norm(tr.ref_p["left_elbow"] - tr.kin_p["left_elbow"], axis=1)
         wr = 100 * np.linalg.norm(tr.ref_p["left_wrist"] - tr.kin_p["left_wrist"], axis=1)
-        out[name] = (_longest(el > 10.0, DT), float(np.nanmax(el)), float(np.nanpercentile(wr, 99)))
+        out[name] = (
+            _longest(el > 10.0, DT),
+            float(np.nanmax(el)),
+            float(np.nanpercentile(wr, 99)),
+            tr.counts["recoveries"],
+        )
     return out
 
 
@@ -63,9 +68,12 @@ def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot):
     assert out["shipped"][0] == 0.0, out
     assert out["shipped"][1] < 0.25 * out["no_centring"][1], out
     assert out["shipped"][2] <= out["no_centring"][2] + 0.1, out
-    # The (opt-in) recovery alone also leads the arm out within 0.1 s.
-    assert out["recovery_only"][0] < 0.1, out
-    assert out["recovery_only"][1] < 0.5 * out["no_centring"][1], out
+    # The (opt-in) recovery alone fires once, in the lock (not on the start-up transient, where its earlier trigger
+    # fired and sent the arm elsewhere): the arm has to swing round to the other branch, so the elbow is still more
+    # than 10 cm off for about 0.5 s (measured 0.55 against 0.59 s, max 26 against 29 cm); the wrists no worse.
+    # The kick_normal lock, which the centring does not prevent, is in test_lockup_recovery.py.
+    assert out["recovery_only"][3] == 1, out
+    assert out["recovery_only"][0] < out["no_centring"][0] and out["recovery_only"][1] < out["no_centring"][1], out
     assert out["recovery_only"][2] <= out["no_centring"][2] + 0.1, out
 
 
