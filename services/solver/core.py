@@ -143,7 +143,8 @@ class SolverConfig:
         recovery: lead an arm out of a lock-up (wrist tracked, elbow far off and not closing in, an arm joint at a
             stop: ``recovery.RecoveryConfig``) through a position-level IK posture, in the wrists' null space
             (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
-            no level to put it on. Off by default: with the shipped settings it never fires on the 25 clips (every
+            no level to put it on; not on wrist-only ticks (their elbow targets are predictions). On by default:
+            a guard for motion we have not seen. With the shipped settings it never fires on the 25 clips (every
             figure the same); with ``saturation_weight`` 2 it takes kick_normal out of its elbow-hyperextension
             lock (elbow mean 5.4 -> 2.7 cm).
         range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
@@ -225,7 +226,7 @@ class SolverConfig:
     wrist_orientation_level: int = 2
     self_collision: bool = False
     elbow_orientation_cost: float = 0.3
-    recovery: bool = False
+    recovery: bool = True
     range_centring_cost: float = 3.0
     range_centring_band: float = 0.25
     range_centring_gain: float = 20.0
@@ -673,8 +674,11 @@ class SolverCore:
         levels = self._levels_for(self.wrist_only)
         if self.centring_task is not None:
             self.centring_task.update(self.q_raw)
-        if self.recovery is not None and self.recovery.update(
-            self.configuration, self.wrist_tasks, self.elbow_tasks, t, self._level1_met
+        # Not on wrist-only ticks: the elbow targets there are predictions (or a rest pull), not the operator's.
+        if (
+            self.recovery is not None
+            and not self.wrist_only
+            and self.recovery.update(self.configuration, self.wrist_tasks, self.elbow_tasks, t, self._level1_met)
         ):
             # Right below the wrists: the arm moves to the IK posture without touching level 1.
             levels = [levels[0], [self.recovery.task], *levels[1:]]

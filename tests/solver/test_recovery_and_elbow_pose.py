@@ -51,13 +51,13 @@ def _wave_runs(robot, variants: dict[str, dict]) -> dict[str, tuple[float, float
 
 
 def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot):
-    assert SolverConfig().range_centring_cost > 0 and not SolverConfig().recovery  # what ships
+    assert SolverConfig().range_centring_cost > 0 and SolverConfig().recovery  # what ships
     out = _wave_runs(
         robot,
         {
             "shipped": {},
-            "no_centring": {"range_centring_cost": 0.0},
-            "recovery_only": {"range_centring_cost": 0.0, "recovery": True},
+            "no_centring": {"range_centring_cost": 0.0, "recovery": False},
+            "recovery_only": {"range_centring_cost": 0.0},
         },
     )
     # Without the joint-range centring the elbow sits ~30 cm off for more than 0.4 s (the lock-up the
@@ -68,7 +68,7 @@ def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot):
     assert out["shipped"][0] == 0.0, out
     assert out["shipped"][1] < 0.25 * out["no_centring"][1], out
     assert out["shipped"][2] <= out["no_centring"][2] + 0.1, out
-    # The (opt-in) recovery alone fires once, in the lock (not on the start-up transient, where its earlier trigger
+    # The recovery alone fires once, in the lock (not on the start-up transient, where its earlier trigger
     # fired and sent the arm elsewhere): the arm has to swing round to the other branch, so the elbow is still more
     # than 10 cm off for about 0.5 s (measured 0.55 against 0.59 s, max 26 against 29 cm); the wrists no worse.
     # The kick_normal lock, which the centring does not prevent, is in test_lockup_recovery.py.
