@@ -53,9 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of everything random")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--rate", type=float, default=50.0, help="closed-loop CLIK rate of the rollouts [Hz]")
-    t.add_argument("--action-kind", choices=("elbow", "posture", "velocity"), default="elbow",
+    t.add_argument("--action-kind", choices=("elbow", "swivel", "posture", "velocity"), default="elbow",
                    help="elbow: the encoder gives the operator's elbow from the hand pose, tracked by the solver's "
-                   "elbow task; posture: the operator's shoulder posture q*, driven as q0dot = K (q* - q); "
+                   "elbow task; swivel: the elbow's angle on the circle that reaches the wrist, placed there for "
+                   "that task; posture: the operator's shoulder posture q*, driven as q0dot = K (q* - q); "
                    "velocity: the paper's q0dot (label -eta grad H)")  # fmt: skip
     t.add_argument("--action-gain", type=float, default=None,
                    help="K [1/s] of the posture kind and of the elbow kind's rollouts (default 20)")  # fmt: skip
@@ -112,7 +113,7 @@ GATE_MIN = 0.03
 def _train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from services.posture.features import ACTION_LAYOUTS, ARM_STATE_LAYOUT, HAND_INPUTS, STATE_LAYOUT
+    from services.posture.features import ACTION_LAYOUTS, ARM_STATE_LAYOUT, HAND_INPUTS, STATE_LAYOUT, action_dim
     from services.posture.policy import save_policy
     from services.posture.relabel import ExperimentConfig, relabel_experiment
     from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip
@@ -135,7 +136,8 @@ def _train(args: argparse.Namespace) -> int:
     posture = args.action_kind != "velocity"  # posture and elbow: labels from the hand pose alone
     tcfg = TrainConfig(hidden=args.hidden, decoder_hidden=args.decoder_hidden, decoder_layers=args.decoder_layers,
                        epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
-                       input_noise=args.input_noise, gate_factor=args.gate_factor)  # fmt: skip
+                       input_noise=args.input_noise, gate_factor=args.gate_factor,
+                       unit_action=args.action_kind == "swivel")  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain
@@ -156,8 +158,8 @@ def _train(args: argparse.Namespace) -> int:
         "encoder_inputs": list(STATE_LAYOUT[:HAND_INPUTS] if posture else STATE_LAYOUT),
         "mirror_signs": [float(x) for x in arms.mirror] if args.mirror else None,
         "network": {
-            "encoder": [14, tcfg.hidden, tcfg.hidden, 3],
-            "decoder": [17, *[tcfg.decoder_hidden] * tcfg.decoder_layers, 6],
+            "encoder": [14, tcfg.hidden, tcfg.hidden, action_dim(args.action_kind)],
+            "decoder": [14 + action_dim(args.action_kind), *[tcfg.decoder_hidden] * tcfg.decoder_layers, 6],
             "activation": "tanh (input and hidden layers), linear output",
         },
         "train_clips": [Path(p).name for p in train_paths],
@@ -169,6 +171,9 @@ def _train(args: argparse.Namespace) -> int:
         "experiment": asdict(ecfg),
         "torch": torch.__version__,
     }
+    if args.action_kind == "swivel":  # each arm's circle and angle reference
+        for i, s in enumerate(SIDES):
+            base_meta["arms"][s]["swivel"] = arms.swivel[i].to_dict()
 
     def make_meta(weights, data):
         meta = dict(base_meta)

@@ -29,7 +29,6 @@ from shared.robot.pinocchio_model import RobotModel
 
 STATE_DIM = 14
 ACTION_DIM = 3
-DECODER_DIM = ACTION_DIM + 7 + 7
 ARM_STATE_DIM = 6
 #: Largest |q̇₀| per joint [rad/s], for the expert's labels and the policy's actions alike: seed 004
 #: leaves "occasional wrong outputs" of the network to future filtering; a bound keeps any output a
@@ -43,13 +42,30 @@ ARM_STATE_LAYOUT = ("ux", "uy", "uz", "fx", "fy", "fz")
 #: operator's elbow e* (3,) [m] (robot base frame, on the robot's proportions: the retargeted elbow the
 #: full-mocap solver tracks), which the solver tracks on the elbow level (the wrist fixes the elbow up to
 #: its swivel, so a 3-D point is all a hand-only predictor needs to give).
-ACTION_KINDS = ("velocity", "posture", "elbow")
+#: ``"swivel"``: the operator's elbow as its angle (cos φ, sin φ) (2,) on the circle of elbows that reach the
+#: wrist target (:mod:`.swivel`), placed on that circle for the elbow level.
+ACTION_KINDS = ("velocity", "posture", "elbow", "swivel")
+#: Kinds whose output is an elbow target for the arm's elbow task (the policy gives it as ``elbow``).
+ELBOW_KINDS = ("elbow", "swivel")
 #: Action entries by name, per kind (for the model file's metadata).
 ACTION_LAYOUTS = {
     "velocity": ACTION_LAYOUT,
     "posture": ACTION_LAYOUT,
     "elbow": ("elbow_x", "elbow_y", "elbow_z"),
+    "swivel": ("swivel_cos", "swivel_sin"),
 }
+
+
+def action_dim(kind: str) -> int:
+    """Length of the encoder's output for an action kind (3, or 2 for the swivel angle)."""
+    return len(ACTION_LAYOUTS[kind])
+
+
+def decoder_dim(kind: str) -> int:
+    """Length of the decoder's input ``(a, q, x_d)`` for an action kind."""
+    return action_dim(kind) + 7 + 7
+
+
 #: State entries a posture encoder reads: the hand pose (Q, p); the joints are masked out.
 HAND_INPUTS = 7
 #: Posture kind: gain K [1/s] of ``q̇₀ = K (q* - q)`` (the solver's elbow-task order of magnitude; with
@@ -104,9 +120,12 @@ def elbow_action(J: np.ndarray, target: np.ndarray, elbow: np.ndarray, gain: flo
 
 def mirror_action(A: np.ndarray, sign: np.ndarray, kind: str) -> np.ndarray:
     """Actions (…, 3) of one arm as the other arm's: joint signs (shoulder joints) or, for the elbow kind,
-    the point reflected through the x-z plane."""
+    the point reflected through the x-z plane; swivel angles (…, 2): sin φ negated (the right arm's angle
+    frame is the left's mirror image, :mod:`.swivel`)."""
     if kind == "elbow":
         return A * np.array([1.0, -1.0, 1.0])
+    if kind == "swivel":
+        return A * np.array([1.0, -1.0])
     return A * sign[:ACTION_DIM]
 
 
@@ -123,7 +142,7 @@ def state(Q: np.ndarray, p: np.ndarray, q_arm: np.ndarray, Q_ref: np.ndarray) ->
 
 
 def decoder_input(action: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """(…, 17) decoder input ``(q̇₀, q, x_d)`` from actions (…, 3) and states (…, 14)."""
+    """(…, A + 14) decoder input ``(q̇₀, q, x_d)`` from actions (…, A) and states (…, 14)."""
     return np.concatenate([action, s[..., 7:14], s[..., 0:7]], axis=-1)
 
 

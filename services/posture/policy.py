@@ -30,13 +30,16 @@ from services.posture.features import (
     ACTION_KINDS,
     ACTION_LIMIT,
     ARM_STATE_DIM,
-    DECODER_DIM,
+    ELBOW_KINDS,
     STATE_DIM,
     ArmFrame,
+    action_dim,
+    decoder_dim,
     decoder_input,
     posture_action,
     virtual_target,
 )
+from services.posture.swivel import SwivelFrame
 from shared.targets import SIDES
 
 FORMAT = "mimic-posture-policy/1"
@@ -95,7 +98,7 @@ def _with_bias(W: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.vstack([W, b[None, :]])
 
 
-def _fast_network(enc: list[Layers], dec: list[Layers], fold: bool) -> dict:
+def _fast_network(enc: list[Layers], dec: list[Layers], fold: bool, A: int = ACTION_DIM) -> dict:
     """Stacked per-arm weights and preallocated buffers of :meth:`PosturePolicy.act`.
 
     The state lives at the tail of the buffer ``X`` (2, 1, H + 15) = ``[h | 1 | S]``, whose head ``h`` is
@@ -103,10 +106,11 @@ def _fast_network(enc: list[Layers], dec: list[Layers], fold: bool) -> dict:
     product of the whole buffer gives the encoder's output ``a`` and the decoder's layer-0
     pre-activation ``a Wa + (x_d, q) W + b`` together (the encoder's linear output layer folded into the
     decoder's first layer, the decoder's state rows and bias beside it). Without ``fold`` (velocity kind:
-    the decoder reads the clipped action) the action goes into ``Y = [a | 1 | S]`` first.
+    the decoder reads the clipped action) the action goes into ``Y = [a | 1 | S]`` first. A: the action's
+    length.
     """
     dt = FAST_DTYPE
-    A, SD = ACTION_DIM, STATE_DIM
+    SD = STATE_DIM
 
     def stack(mats):
         return np.ascontiguousarray(np.stack(mats), dtype=dt)
@@ -156,7 +160,7 @@ def _fast_network(enc: list[Layers], dec: list[Layers], fold: bool) -> dict:
     f["enc_P"] = f["enc_P"][0]
     f["W_z"] = stack([_with_bias(*d[-1]) for d in dec])
     f["z"] = np.empty((2, 1, ARM_STATE_DIM), dt)
-    f["qd0"] = np.zeros((2, A))
+    f["qd0"] = np.zeros((2, ACTION_DIM))
     f["x_dv"] = np.empty((2, 3))
     f["gap"] = np.empty(2)
     f["gate"] = np.empty(2, bool)
@@ -178,8 +182,11 @@ class PolicyOutput:
     Attributes:
         qd0: (2, 3) null-space velocities [rad/s], within ±ACTION_LIMIT. x_dv: (2, 3) virtual targets [m].
         gap: (2,) |x_dv - p| [m]. gate: (2,) True where the action may be used.
-        action: (2, 3) the encoder's output: q̇₀ itself, the shoulder posture q* [rad] (posture kind) or the
-            elbow [m] (elbow kind); float32 from :meth:`PosturePolicy.act`.
+        action: (2, A) the encoder's output: q̇₀ itself, the shoulder posture q* [rad] (posture kind), the
+            elbow [m] (elbow kind) or its swivel angle (cos φ, sin φ) (swivel kind, unnormalised); float32
+            from :meth:`PosturePolicy.act`.
+        elbow: (2, 3) [m] the elbow target of the kinds in ``ELBOW_KINDS``: ``action`` itself (elbow kind)
+            or the elbow placed at the angle on the circle that reaches the wrist ``p`` (swivel kind).
     """
 
     qd0: np.ndarray
@@ -187,6 +194,7 @@ class PolicyOutput:
     gap: np.ndarray
     gate: np.ndarray
     action: np.ndarray
+    elbow: np.ndarray
 
 
 class PosturePolicy:
@@ -211,24 +219,35 @@ class PosturePolicy:
             raise PolicyError(f"model metadata incomplete: {exc}") from None
         if self.kind not in ACTION_KINDS or (self.kind == "posture" and not self.gain > 0.0):
             raise PolicyError(f"action kind {self.kind!r} (gain {self.gain}): expected one of {ACTION_KINDS}, gain > 0")
+        A, DD = action_dim(self.kind), decoder_dim(self.kind)
         for side, e, d in zip(SIDES, enc, dec):
-            if e[0][0].shape[0] != STATE_DIM or e[-1][0].shape[1] != ACTION_DIM:
-                raise PolicyError(f"{side} encoder maps {e[0][0].shape[0]} -> {e[-1][0].shape[1]}, expected 14 -> 3")
-            if d[0][0].shape[0] != DECODER_DIM or d[-1][0].shape[1] != ARM_STATE_DIM:
-                raise PolicyError(f"{side} decoder maps {d[0][0].shape[0]} -> {d[-1][0].shape[1]}, expected 17 -> 6")
+            if e[0][0].shape[0] != STATE_DIM or e[-1][0].shape[1] != A:
+                raise PolicyError(f"{side} encoder maps {e[0][0].shape[0]} -> {e[-1][0].shape[1]}, expected 14 -> {A}")
+            if d[0][0].shape[0] != DD or d[-1][0].shape[1] != ARM_STATE_DIM:
+                raise PolicyError(f"{side} decoder maps {d[0][0].shape[0]} -> {d[-1][0].shape[1]}, expected {DD} -> 6")
+        #: swivel kind: each arm's circle and angle reference (recorded in the file: ``arms.<side>.swivel``)
+        self.swivel: list[SwivelFrame] = []
+        if self.kind == "swivel":
+            try:
+                self.swivel = [SwivelFrame.from_dict(meta["arms"][s]["swivel"]) for s in SIDES]
+            except (KeyError, TypeError, ValueError) as exc:
+                raise PolicyError(f"swivel policy without its angle frames: {exc}") from None
         self._enc64, self._dec64 = enc, dec
         self._centre = np.array([a.centre for a in self.arms])
         self._len = np.array([[a.upper, a.fore] for a in self.arms])
         #: the encoder's output layer folds into the decoder's first (the decoder reads the raw action)
         self._fold = self.kind != "velocity"
-        self._fast = _fast_network(enc, dec, self._fold)
+        self._fast = _fast_network(enc, dec, self._fold, A)
         self._posture, self._velocity = self.kind == "posture", self.kind == "velocity"
+        #: the output is an elbow target (``PolicyOutput.elbow``) for the arm's elbow task
+        self.gives_elbow = self.kind in ELBOW_KINDS
         # the gate's constants as floats (plain arithmetic per tick): centre (3), L_u, L_f, threshold
         self._gate_const = [(*c, *ln, t) for c, ln, t in zip(self._centre.tolist(), self._len.tolist(),
                                                               self.threshold.tolist())]  # fmt: skip
         f = self._fast
         action = f["C_a"] if self._fold else f["Y_a"][:, 0]
-        self._out = PolicyOutput(f.pop("qd0"), f.pop("x_dv"), f.pop("gap"), f.pop("gate"), action)
+        elbow = action if self.kind == "elbow" else np.zeros((2, 3))
+        self._out = PolicyOutput(f.pop("qd0"), f.pop("x_dv"), f.pop("gap"), f.pop("gate"), action, elbow)
 
     @property
     def robot(self) -> str:
@@ -294,7 +313,10 @@ class PosturePolicy:
             out.qd0[:] = [[min(max(K * (x - q), -L), L) for x, q in zip(act[i], s[i][7:10])] for i in (0, 1)]
         elif self._velocity:
             np.copyto(out.qd0, out.action)
-        # elbow kind: qd0 stays zero (the caller tracks the target)
+        # elbow kinds: qd0 stays zero (the caller tracks the target)
+        if self.swivel:
+            act = out.action.tolist()
+            out.elbow[:] = [w.place_floats(a[0], a[1], *si[4:7]) for w, a, si in zip(self.swivel, act, s)]
         # Gate: x_dv = c + L_u u/|u| + L_f f/|f|, gap = |x_dv - p|; a non-finite state entry closes its
         # arm's gate (NaN compares False; the sum also catches inf).
         xs, ds, gs = [], [], []
@@ -314,7 +336,7 @@ class PosturePolicy:
 
     def act_reference(self, S: np.ndarray) -> PolicyOutput:
         """:meth:`act` written plainly, per arm in float64 (the definition the fast path is tested against)."""
-        A, QD, XDV, GAP, GATE = [], [], [], [], []
+        A, QD, XDV, GAP, GATE, E = [], [], [], [], [], []
         for i in range(2):
             s = np.asarray(S[i], dtype=float)
             a = mlp(self._enc64[i], s)
@@ -324,6 +346,7 @@ class PosturePolicy:
                 a = qd0 = np.clip(a, -ACTION_LIMIT, ACTION_LIMIT)
             else:
                 qd0 = np.zeros(ACTION_DIM)
+            E.append(self.swivel[i].place(a, s[4:7]) if self.swivel else a if self.kind == "elbow" else np.zeros(3))
             z = mlp(self._dec64[i], decoder_input(a, s))
             x_dv = virtual_target(self.arms[i], z)
             gap = float(np.linalg.norm(x_dv - s[4:7]))
@@ -332,7 +355,7 @@ class PosturePolicy:
             XDV.append(x_dv)
             GAP.append(gap)
             GATE.append(bool(gap <= self.threshold[i]) and bool(np.isfinite(s).all()))
-        return PolicyOutput(np.array(QD), np.array(XDV), np.array(GAP), np.array(GATE), np.array(A))
+        return PolicyOutput(np.array(QD), np.array(XDV), np.array(GAP), np.array(GATE), np.array(A), np.array(E))
 
     def virtual_target(self, side: int, z: np.ndarray) -> np.ndarray:
         """x_dv (…, 3) of arm states (…, 6) of arm ``side`` (0 left, 1 right)."""

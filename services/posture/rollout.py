@@ -23,8 +23,10 @@ from services.posture.features import (
     ACTION_DIM,
     ACTION_KINDS,
     ACTION_LIMIT,
+    ELBOW_KINDS,
     POSTURE_ACTION_GAIN,
     ArmFrame,
+    action_dim,
     action_joints,
     arm_joints,
     arm_state,
@@ -34,6 +36,7 @@ from services.posture.features import (
     state,
 )
 from services.posture.policy import PosturePolicy
+from services.posture.swivel import SwivelFrame
 from services.solver.clik_mimicry import DEFAULT_ETA, clik_step
 from shared.kinematics import AlignmentTask, Configuration
 from shared.robot.pinocchio_model import RobotModel
@@ -152,9 +155,11 @@ class RolloutConfig:
         eta: η of eq. (3) [1/s]. settle: first frame held this long [s] before recording.
         posture_gain: gate fallback: rest-posture pull [1/s] on the arm joints.
         action_kind: "velocity" (the expert's label is ``-η ∇H``, eqs. 3-6), "posture" (the label is
-            the operator's shoulder posture ``q*``, driven as ``q̇₀ = K (q* - q)``) or "elbow" (the label
+            the operator's shoulder posture ``q*``, driven as ``q̇₀ = K (q* - q)``), "elbow" (the label
             is the operator's elbow ``e*``, driven as a bounded damped least-squares step
-            ``q̇₀ = J_e⁺ K (e* - e)`` of the shoulder joints, :func:`.features.elbow_action`).
+            ``q̇₀ = J_e⁺ K (e* - e)`` of the shoulder joints, :func:`.features.elbow_action`) or "swivel"
+            (the label is ``e*``'s angle on the circle of elbows that reach the wrist target, driven as
+            "elbow" with the elbow placed at that angle on the current target's circle, :mod:`.swivel`).
         action_gain: K [1/s] of the posture and elbow kinds.
     """
 
@@ -174,8 +179,9 @@ class Rollout:
     """Recorded ticks of one rollout, per tick k and arm i.
 
     Attributes:
-        S: (K, 2, 14) states. A: (K, 2, 3) expert labels. A_pi: (K, 2, 3) policy actions (zeros when the
-        expert drove); both of the config's action kind. Z: (K, 2, 6) operator arm state.
+        S: (K, 2, 14) states. A: (K, 2, A) expert labels. A_pi: (K, 2, A) policy actions (zeros when the
+        expert drove); both of the config's action kind (A = 3, or 2 for the swivel kind).
+        Z: (K, 2, 6) operator arm state.
         label_ok: (K, 2) expert label defined.
         elbow_err, wrist_err: (K, 2) [m] robot elbow / wrist vs the references. gate: (K, 2).
     """
@@ -208,6 +214,8 @@ class ArmsModel:
 
         geo = [ArmGeometry.measure(robot, s) for s in SIDES]
         self.frames = [ArmFrame(g.centre.copy(), g.upper, g.fore) for g in geo]
+        #: per side: the swivel kind's circle and angle reference
+        self.swivel = [SwivelFrame.for_arm(g.centre, g.upper, g.fore, s) for g, s in zip(geo, SIDES)]
         #: (7,) left -> right joint signs of the mirror image (for mirrored demonstrations)
         self.mirror = mirror_signs(robot)
 
@@ -234,6 +242,7 @@ def rollout(
         raise ValueError(f"action_kind must be one of {ACTION_KINDS}, got {cfg.action_kind!r}")
     kind = cfg.action_kind
     posture = kind != "velocity"  # posture and elbow kinds: a label from the clip frame alone
+    n_act = action_dim(kind)
     robot = arms.robot
     conf = Configuration(robot)
     q = robot.q_rest.copy()
@@ -254,25 +263,29 @@ def rollout(
         tau = 0.0 if settling else min(t - clip.t[k], frame_dt)
         conf.update(q)
         S = np.zeros((2, 14))
-        A = np.zeros((2, ACTION_DIM))
+        A = np.zeros((2, n_act))
         lab = np.zeros(2, bool)
         p_t = []
         for i in range(2):
             p_t.append(clip.p[i, k] + (0.0 if settling else 1.0) * clip.v[i, k] * tau)
             S[i] = state(matrix_to_quat(clip.R[i, k]), p_t[i], q[arms.arm[i]], arms.Q_ref[i])
-            if posture:
+            if kind == "swivel":
+                A[i] = arms.swivel[i].angle(clip.elbow[i, k], clip.p[i, k])  # (the frame's own wrist target)
+                lab[i] = True
+            elif posture:
                 A[i] = clip.elbow[i, k] if kind == "elbow" else clip.q_star[i, k]
                 lab[i] = True
             elif clip.has_m[i, k]:
                 arms.align[i].set_target(clip.R_m[i, k], check=False)
                 A[i] = np.clip(-cfg.eta * arms.align[i].gradient(conf)[arms.act[i]], -ACTION_LIMIT, ACTION_LIMIT)
                 lab[i] = True
-        A_pi = np.zeros((2, ACTION_DIM))
+        A_pi = np.zeros((2, n_act))
         gate = np.zeros(2, bool)
         if driver == "policy":
             out = policy.act(S)
             # copies: the policy's output arrays are its buffers, overwritten by the next call
             A_pi, gate, qd0_pi = out.action.astype(float), out.gate.copy(), out.qd0.copy()
+            elbow_pi = out.elbow.astype(float)
         qd = np.zeros(robot.nq)
         for i in range(2):
             J = conf.get_frame_jacobian(wrist_names[i])[:, arms.arm[i]]
@@ -283,10 +296,14 @@ def rollout(
             a_i = A[i] if driver == "expert" else A_pi[i]
             if driver == "policy" and use_gate and not gate[i]:
                 qd0 = cfg.posture_gain * (robot.q_rest[arms.arm[i]] - q[arms.arm[i]])
-            elif kind == "elbow":
+            elif kind in ELBOW_KINDS:
                 J_e = conf.get_frame_jacobian(elbow_names[i])[:3, arms.act[i]]
                 e_now = conf.get_frame_pose(elbow_names[i])[0]
-                qd0[:ACTION_DIM] = elbow_action(J_e, a_i, e_now, cfg.action_gain)
+                if driver == "policy":
+                    e_t = elbow_pi[i]
+                else:
+                    e_t = arms.swivel[i].place(a_i, p_t[i]) if kind == "swivel" else a_i
+                qd0[:ACTION_DIM] = elbow_action(J_e, e_t, e_now, cfg.action_gain)
             elif driver == "expert":
                 qd0[:ACTION_DIM] = posture_action(a_i, q[arms.act[i]], cfg.action_gain) if posture else a_i
             else:

@@ -20,7 +20,6 @@ import numpy as np
 from services.posture.features import (
     ACTION_DIM,
     ARM_STATE_DIM,
-    DECODER_DIM,
     HAND_INPUTS,
     STATE_DIM,
     mirror_action,
@@ -78,6 +77,9 @@ class TrainConfig:
         hand_only: the encoder reads the hand pose (Q, p) only (the joint inputs are masked out and
             their first-layer weights exported as zero): for the posture and elbow action kinds, whose
             labels do not depend on where the robot's arm is.
+        unit_action: the action loss on the raw labels, not on labels normalised per entry: for the
+            swivel kind's (cos φ, sin φ), where the squared error is then the squared chord of the angle
+            error, the same for every direction (per-entry scaling would weigh one axis of the circle more).
     """
 
     hidden: int = 128
@@ -92,19 +94,20 @@ class TrainConfig:
     hand_only: bool = False
     input_noise: float = 0.0
     gate_factor: float = 4.0
+    unit_action: bool = False
 
 
 @dataclass
 class Dataset:
-    """Per arm side: states (N, 14), expert actions (N, 3), operator arm states (N, 6)."""
+    """Per arm side: states (N, 14), expert actions (N, A), operator arm states (N, 6)."""
 
     S: list[np.ndarray]
     A: list[np.ndarray]
     Z: list[np.ndarray]
 
     @classmethod
-    def empty(cls) -> Dataset:
-        return cls([np.zeros((0, STATE_DIM))] * 2, [np.zeros((0, ACTION_DIM))] * 2, [np.zeros((0, ARM_STATE_DIM))] * 2)
+    def empty(cls, action_dim: int = ACTION_DIM) -> Dataset:
+        return cls([np.zeros((0, STATE_DIM))] * 2, [np.zeros((0, action_dim))] * 2, [np.zeros((0, ARM_STATE_DIM))] * 2)
 
     def __len__(self) -> int:
         return sum(len(s) for s in self.S)
@@ -136,6 +139,8 @@ def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
             the expert's by ``||a - â||² >= eps`` (Algorithm 1, line 6).
     """
     S, A, Z = [[], []], [[], []], [[], []]
+    rollouts = list(rollouts)
+    n_act = rollouts[0].A.shape[-1] if rollouts else ACTION_DIM
     for r in rollouts:
         if not len(r.S):
             continue
@@ -146,7 +151,7 @@ def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
             S[i].append(r.S[m, i])
             A[i].append(r.A[m, i])
             Z[i].append(r.Z[m, i])
-    cat = [lambda x, d=d: np.concatenate(x) if x else np.zeros((0, d)) for d in (STATE_DIM, ACTION_DIM, ARM_STATE_DIM)]
+    cat = [lambda x, d=d: np.concatenate(x) if x else np.zeros((0, d)) for d in (STATE_DIM, n_act, ARM_STATE_DIM)]
     return Dataset([cat[0](S[i]) for i in range(2)], [cat[1](A[i]) for i in range(2)], [cat[2](Z[i]) for i in range(2)])
 
 
@@ -185,6 +190,8 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
         t0 = time.perf_counter()
         Din = np.concatenate([A, S[:, 7:14], S[:, 0:7]], axis=1)
         ns, na, nd, nz = _norm(S), _norm(A), _norm(Din), _norm(Z)
+        if cfg.unit_action:
+            na = (np.zeros(A.shape[1]), np.ones(A.shape[1]))
         T = {k: torch.tensor(v, dtype=torch.float32) for k, v in
              {"S": (S - ns[0]) / ns[1], "A": (A - na[0]) / na[1], "Z": (Z - nz[0]) / nz[1]}.items()}  # fmt: skip
         q_xd = torch.tensor(np.concatenate([S[:, 7:14], S[:, 0:7]], axis=1), dtype=torch.float32)
@@ -195,8 +202,8 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
         if cfg.hand_only:
             T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
         gen = torch.Generator().manual_seed(cfg.seed + i)
-        enc = _net(torch, STATE_DIM, cfg.hidden, ACTION_DIM)
-        dec = _net(torch, DECODER_DIM, cfg.decoder_hidden or cfg.hidden, ARM_STATE_DIM, cfg.decoder_layers)
+        enc = _net(torch, STATE_DIM, cfg.hidden, A.shape[1])
+        dec = _net(torch, Din.shape[1], cfg.decoder_hidden or cfg.hidden, ARM_STATE_DIM, cfg.decoder_layers)
         opt = torch.optim.Adam([*enc.parameters(), *dec.parameters()], lr=cfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
         curve = []

@@ -110,10 +110,7 @@ class ArmGeometry:
         if d < 1e-9:
             return self.centre + self.upper * self.default_swivel
         u = (a[0] / d, a[1] / d, a[2] / d)
-        lo, hi = abs(self.upper - self.fore) + 1e-4, self.upper + self.fore - 1e-6
-        d = min(max(d, lo), hi)  # an out-of-reach wrist: elbow on the stretched (or folded) arm
-        x = (self.upper**2 - self.fore**2 + d**2) / (2.0 * d)
-        r = math.sqrt(max(self.upper**2 - x**2, 0.0))
+        x, r = elbow_circle(self.upper, self.fore, d)
         s, n0 = _xyz(swivel), _xyz(self.default_swivel)
         n = _perp3((s[0] + _STRAIGHT_BLEND * n0[0], s[1] + _STRAIGHT_BLEND * n0[1], s[2] + _STRAIGHT_BLEND * n0[2]), a)
         nn = _norm(n)
@@ -122,6 +119,19 @@ class ArmGeometry:
             nn = _norm(n)
         m = max(nn, 1e-12)
         return np.array([c[i] + x * u[i] + r * (n[i] / m) for i in range(3)])
+
+
+def elbow_circle(upper: float, fore: float, d: float) -> tuple[float, float]:
+    """The circle of elbows that reach a wrist at distance d [m] from the shoulder centre (d > 0).
+
+    Returns (x, r) [m]: the circle's centre lies at x along the shoulder-wrist axis, its radius is r
+    (upper-arm length ``upper`` from the shoulder centre, forearm length ``fore`` from the wrist). A
+    wrist out of reach is taken on the stretched (or folded) arm: d clamped into the lengths' range.
+    """
+    lo, hi = abs(upper - fore) + 1e-4, upper + fore - 1e-6
+    d = min(max(d, lo), hi)
+    x = (upper**2 - fore**2 + d**2) / (2.0 * d)
+    return x, math.sqrt(max(upper**2 - x**2, 0.0))
 
 
 # Plain floats for the 3-vectors here: numpy's per-call overhead was most of the retarget step (two

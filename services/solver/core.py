@@ -507,7 +507,7 @@ class SolverCore:
                 for i, s in enumerate(SIDES):
                     if s in gate:
                         gate[s] = bool(out.gate[i])
-        elbow_kind = self.policy is not None and self.policy.kind == "elbow" and self.config.algo != "clik-mimicry"
+        elbow_kind = self.policy is not None and self.policy.gives_elbow and self.config.algo != "clik-mimicry"
         for i, s in enumerate(SIDES):
             if s not in gate:
                 continue
@@ -518,7 +518,7 @@ class SolverCore:
             if not gate[s]:
                 self.counts["gate_closed"] += 1
             elif elbow_kind:
-                self._trusted[s] = out.action[i].astype(float)
+                self._trusted[s] = out.elbow[i].astype(float)
             else:
                 v = np.zeros(len(self.arm_idx[s]))
                 v[: out.qd0.shape[1]] = out.qd0[i]

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.posture.features import ARM_STATE_DIM, DECODER_DIM, STATE_DIM, action_joints
+from services.posture.features import ARM_STATE_DIM, STATE_DIM, action_joints
 from services.posture.policy import save_policy
+from services.posture.swivel import SwivelFrame
 from services.retarget.elbow import ArmGeometry
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import matrix_to_quat
@@ -16,15 +17,19 @@ from shared.targets import SIDES
 
 
 def random_weights(
-    rng: np.random.Generator, hidden: int = 16, scale: float = 0.3, decoder: tuple[int, ...] | None = None
+    rng: np.random.Generator,
+    hidden: int = 16,
+    scale: float = 0.3,
+    decoder: tuple[int, ...] | None = None,
+    action: int = 3,
 ) -> dict[str, np.ndarray]:
-    """Encoder 14-h-h-3 and decoder 17-(decoder, default h-h)-6 per side, small random weights."""
+    """Encoder 14-h-h-A and decoder (A + 14)-(decoder, default h-h)-6 per side, small random weights."""
     out = {}
     dec_hidden = (hidden, hidden) if decoder is None else decoder
     for side in SIDES:
         for net, dims in (
-            ("enc", (STATE_DIM, hidden, hidden, 3)),
-            ("dec", (DECODER_DIM, *dec_hidden, ARM_STATE_DIM)),
+            ("enc", (STATE_DIM, hidden, hidden, action)),
+            ("dec", (action + 14, *dec_hidden, ARM_STATE_DIM)),
         ):
             for k, (a, b) in enumerate(itertools.pairwise(dims)):
                 out[f"{side}.{net}.W{k}"] = rng.normal(scale=scale, size=(a, b))
@@ -58,6 +63,7 @@ def write_random_policy(
     hidden: int = 16,
     scale: float = 0.3,
     decoder: tuple[int, ...] | None = None,
+    swivel: dict[str, np.ndarray] | None = None,
 ) -> Path:
     """A loadable policy file with random weights (the gate open for threshold=1e3, shut for 0).
 
@@ -67,9 +73,12 @@ def write_random_policy(
             every state (output layer zero, bias the point); the decoder stays random.
         hidden, scale: hidden units and weight scale of the random layers.
         decoder: the decoder's hidden widths (default: two of ``hidden``).
+        swivel: when given (side -> (2,) (cos, sin), any length), a swivel-kind policy whose encoder outputs
+            that for every state; an empty dict: a swivel-kind policy with a random encoder.
     """
     meta = policy_meta(robot, threshold)
-    weights = random_weights(np.random.default_rng(seed), hidden=hidden, scale=scale, decoder=decoder)
+    rng = np.random.default_rng(seed)
+    weights = random_weights(rng, hidden=hidden, scale=scale, decoder=decoder, action=2 if swivel is not None else 3)
     if posture_gain is not None:
         meta.update(action_kind="posture", posture_gain=posture_gain)
     if elbow is not None:
@@ -77,4 +86,12 @@ def write_random_policy(
         for side, e in elbow.items():
             weights[f"{side}.enc.W2"] = np.zeros_like(weights[f"{side}.enc.W2"])
             weights[f"{side}.enc.b2"] = np.asarray(e, dtype=float)
+    if swivel is not None:
+        meta.update(action_kind="swivel")
+        for side in SIDES:
+            a = meta["arms"][side]
+            a["swivel"] = SwivelFrame.for_arm(a["centre"], a["upper"], a["fore"], side).to_dict()
+        for side, cs in swivel.items():
+            weights[f"{side}.enc.W2"] = np.zeros_like(weights[f"{side}.enc.W2"])
+            weights[f"{side}.enc.b2"] = np.asarray(cs, dtype=float)
     return save_policy(path, weights, meta)

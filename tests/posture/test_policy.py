@@ -37,13 +37,14 @@ def test_round_trip_and_fast_path_equals_each_arms_network(tmp_path, robot14):
 
 
 @pytest.mark.parametrize("decoder", [(128, 128), (32,)], ids=["dec128x2", "dec32x1"])
-@pytest.mark.parametrize("kind", ["velocity", "posture", "elbow"])
+@pytest.mark.parametrize("kind", ["velocity", "posture", "elbow", "swivel"])
 def test_fast_path_equals_the_reference_forward_pass(tmp_path, robot14, kind, decoder):
     """act (float32, batched, folded) against act_reference (float64, per arm), on networks of the trained
     sizes (the shipped decoder has one hidden layer of 32) and weight magnitude (0.1 ~ 1/sqrt(128): the
     trained files' layers are of that order)."""
     gain = 20.0
-    extra = {"posture": {"posture_gain": gain}, "elbow": {"elbow": {s: [0.1, 0.2, 0.0] for s in SIDES}}}
+    extra = {"posture": {"posture_gain": gain}, "elbow": {"elbow": {s: [0.1, 0.2, 0.0] for s in SIDES}},
+             "swivel": {"swivel": {}}}  # fmt: skip
     path = write_random_policy(tmp_path / "p.npz", robot14, threshold=0.3, hidden=128, scale=0.1, decoder=decoder,
                                **extra.get(kind, {}))  # fmt: skip
     pol = PosturePolicy.load(path)
@@ -60,15 +61,18 @@ def test_fast_path_equals_the_reference_forward_pass(tmp_path, robot14, kind, de
         np.testing.assert_allclose(fast.action, ref.action, atol=1e-6)
         np.testing.assert_allclose(fast.x_dv, ref.x_dv, atol=1e-6)
         np.testing.assert_allclose(fast.gap, ref.gap, atol=1e-6)
+        np.testing.assert_allclose(fast.elbow, ref.elbow, atol=1e-5)  # swivel: placed from a float32 angle
         # qd0 = K (a - q) for the posture kind: the action's 1e-6 times K
         np.testing.assert_allclose(fast.qd0, ref.qd0, atol=1e-6 * (gain if kind == "posture" else 1.0))
         near = np.abs(ref.gap - pol.threshold) < 1e-5  # the gate may differ only on its threshold
         assert np.array_equal(fast.gate[~near], ref.gate[~near])
         opened += int(ref.gate.sum())
     assert 0 < opened < 400  # both sides of the threshold were exercised
-    if kind == "elbow":
+    if kind in ("elbow", "swivel"):
         assert np.all(fast.qd0 == 0.0)
+    if kind == "elbow":
         np.testing.assert_allclose(fast.action, [[0.1, 0.2, 0.0]] * 2, atol=1e-6)
+        np.testing.assert_allclose(fast.elbow, fast.action, atol=0.0)
 
 
 def test_altered_or_foreign_files_are_refused_with_a_reason(tmp_path, robot14):

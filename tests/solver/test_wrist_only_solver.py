@@ -148,3 +148,29 @@ def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_p
     assert "held" not in {c.status for c in cmds[10:]}
     for q in q_pol:
         assert np.all(q >= robot17.lower - 1e-12) and np.all(q <= robot17.upper + 1e-12)
+
+
+def test_swivel_kind_policy_gives_the_elbow_task_its_angle_on_the_wrist_targets_circle(robot17, tmp_path):
+    """A swivel-kind policy's angle is placed on the circle of elbows that reach the current wrist target, and that
+    point is the arm's elbow task's target; the wrists stay where they were."""
+    from services.posture.policy import PosturePolicy
+
+    stream = wrist_stream(robot17, 24)
+    base = SolverConfig(qp="daqp", rate=RATE, smoothing=False, self_collision=False)
+    cs = {"left": [0.3, 0.9], "right": [0.5, -0.8]}
+    path = write_random_policy(tmp_path / "swivel.npz", robot17, threshold=1e3, swivel=cs)
+    frames = PosturePolicy.load(path).swivel
+    _c0, q_rest, _ = run(robot17, base, stream)
+    core, q_pol, _ = run(robot17, replace(base, posture_policy=str(path)), stream)
+    assert core.counts["policy_ticks"] > 0 and core.counts["gate_closed"] == 0
+    assert core.wrist_only == () and set(core.policy_elbow) == {"left", "right"}
+    for i, s in enumerate(("left", "right")):
+        task = next(t for t in core.elbow_tasks if t.frame == f"{s}_elbow")
+        p = stream[-1].targets[f"{s}_wrist"].p
+        np.testing.assert_allclose(task.p_target, frames[i].place(np.array(cs[s]), p), atol=1e-6)
+        # on the upper-arm sphere (this stream stretches the arms up to 6 mm past the modelled reach, where the
+        # circle is the stretched arm's and the forearm sphere is not met)
+        assert np.linalg.norm(task.p_target - frames[i].centre) == pytest.approx(frames[i].upper, abs=1e-6)
+    wr_rest = np.array([[robot17.frame_poses(q)[w][0] for w in WRISTS] for q in q_rest])
+    wr_pol = np.array([[robot17.frame_poses(q)[w][0] for w in WRISTS] for q in q_pol])
+    assert np.max(np.linalg.norm(wr_rest - wr_pol, axis=2)) < 5e-4  # level 1 untouched (as the elbow kind's)
