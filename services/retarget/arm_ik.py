@@ -111,10 +111,12 @@ class ArmIk:
             # Joints at a stop that the step pushes further are held and the step solved again
             # without them: clipping alone leaves the other joints' share of the step aimed at a
             # motion that does not happen, and the iteration stalls against the stop.
-            held = ((q <= self.lower) & (dq < 0)) | ((q >= self.upper) & (dq > 0))
-            if held.any():
-                A[:, held] = 0.0
-                dq = np.linalg.solve(A.T @ A + self.damping * self._eye, A.T @ b)
+            at_lo, at_hi = q <= self.lower, q >= self.upper
+            if at_lo.any() or at_hi.any():  # (rarely: tested first, the per-call cost of numpy dominates)
+                held = (at_lo & (dq < 0)) | (at_hi & (dq > 0))
+                if held.any():
+                    A[:, held] = 0.0
+                    dq = np.linalg.solve(A.T @ A + self.damping * self._eye, A.T @ b)
             n = float(np.sqrt(dq @ dq))
             if n > max_step:
                 dq *= max_step / n

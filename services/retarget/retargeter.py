@@ -557,7 +557,10 @@ class Retargeter(FrameIntake):
                 continue  # wrist-only (or invalid) arms are published as mapped
             if gap:
                 arm.reset()
+            recoveries = arm.recoveries
             P[ie], R[iw], elbow_R = arm(P[iw], P[ie], R[iw])
+            if arm.recoveries != recoveries:  # the warm posture was stuck (status: how often)
+                self.counts[f"consistent_recovered_{side}"] += 1
             if self._use_rotation[ie]:
                 R[ie] = elbow_R
 
