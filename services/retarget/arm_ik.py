@@ -1,9 +1,11 @@
 """Position-level IK of one robot arm: weighted damped Gauss-Newton least squares, warm-started.
 
-One idea, used twice by the retargeter: :class:`.upper_arm.UpperArmSolver` (shoulder and elbow
-joints, wrist joints at zero; elbow and wrist positions) and :class:`.consistent.ConsistentArm`
-(all seven joints; wrist position, elbow position and wrist orientation). Each call runs a few
-iterations from the previous call's solution, so a slowly moving target costs one or two.
+One idea, used three times by the retargeter: :func:`.orientation.calibration_posture` and
+:class:`.upper_arm.UpperArmSolver` (shoulder and elbow joints, wrist joints at zero; elbow and wrist
+positions) and :class:`.consistent.ConsistentArm` (all seven joints; wrist position, elbow position
+and wrist orientation). Each call runs a few iterations from the previous call's solution, so a
+slowly moving target costs one or two. (The evaluation's reachability check,
+``services/evaluation/reachability.py``, keeps its own IK on purpose: it checks this one.)
 
 The arm is evaluated on its own Pinocchio model (the other joints locked where the caller put them,
 the waist at rest), so forward kinematics and Jacobians cover its joints only.
