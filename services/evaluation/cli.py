@@ -12,7 +12,14 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from services.evaluation.metrics import REACHABLE_TOL, compare, reachable_mask, summarise, trace_metrics
+from services.evaluation.metrics import (
+    REACHABLE_TOL,
+    compare,
+    reachable_mask,
+    summarise,
+    target_adjustment,
+    trace_metrics,
+)
 from services.evaluation.mink_peer import PEERS, MinkMissingError, require_mink
 from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
 from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_retarget, run_algorithm
@@ -72,6 +79,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=RetargetConfig().velocity_tau,
         help="retarget velocity low-pass time constant [s] (default: the service's)",
+    )
+    p.add_argument(
+        "--consistent-targets",
+        action=argparse.BooleanOptionalAction,
+        default=RetargetConfig().consistent_targets,
+        help="publish per arm the elbow and wrist orientation of the posture meeting the wrist target "
+        "(RetargetConfig.consistent_targets; default: the service's); the JSON then gives, per clip, how far "
+        "they moved from the plain retargeted ones (target_adjustment)",
     )
     p.add_argument(
         "--no-ik-check",
@@ -154,6 +169,11 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             bar.update(len(runs))
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
+        if retarget.get("consistent_targets"):
+            _, plain = load_and_retarget(
+                Path(path), robot, None, {**retarget, "consistent_targets": False}, getattr(args, "skeleton_map", None)
+            )
+            entry["target_adjustment"] = target_adjustment(plain, targets)
         report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
         for label, algo, wo, extra in runs:
@@ -195,7 +215,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         "clips": clips_out,
         "skipped": skipped,
         "failed": failed,
-        "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)},
+        "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)} | _adjustment_summary(clips_out),
         "paper": PAPER,
     }
     result["settings"] = _settings_json(args, algos, solver, wqp_weights, retarget, robot.nq)
@@ -204,6 +224,23 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
     }
     return result, traces
+
+
+def _adjustment_summary(clips: list[dict]) -> dict:
+    """``target_adjustment`` over clips (empty without consistent targets): the arm-frame weighted mean,
+    the worst clip's p99 and the largest max, per quantity."""
+    rows = [c["target_adjustment"] for c in clips if c.get("target_adjustment", {}).get("arm_frames")]
+    if not rows:
+        return {}
+    out = {}
+    for key in ("elbow_cm", "wrist_rot_deg"):
+        w = [r["arm_frames"] for r in rows]
+        out[key] = {
+            "mean": float(sum(r[key]["mean"] * n for r, n in zip(rows, w, strict=True)) / sum(w)),
+            "p99": max(r[key]["p99"] for r in rows),
+            "max": max(r[key]["max"] for r in rows),
+        }
+    return {"target_adjustment": out}
 
 
 def _compare_summary(clips: list[dict]) -> dict:
@@ -259,6 +296,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
+    retarget["consistent_targets"] = getattr(args, "consistent_targets", defaults.consistent_targets)
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from services.evaluation.reachability import ReachabilityReport
 from services.evaluation.runner import Trace
 from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import quat_to_matrix
 from shared.targets import ELBOWS, WRISTS
 
 #: Level-1 residual under which the strict hierarchy counts a wrist target as met.
@@ -21,6 +23,32 @@ def _stats(v: np.ndarray) -> dict:
     if not v.size:
         return {"mean": None, "p99": None, "max": None}
     return {"mean": float(v.mean()), "p99": float(np.percentile(v, 99)), "max": float(v.max())}
+
+
+def target_adjustment(plain: list, published: list) -> dict:
+    """How far the published targets moved from the plain retargeted ones (``consistent_targets``).
+
+    Args:
+        plain, published: TaskTargets of the same clip frames without and with the option (same seqs).
+
+    Returns:
+        ``elbow_cm`` and ``wrist_rot_deg``: mean / p99 / max over the frames and arms whose wrist and
+        elbow are valid in both; ``arm_frames`` compared (frames x arms).
+    """
+    by_seq = {tt.hdr.seq: tt for tt in plain}
+    elbow, rot = [], []
+    for tt in published:
+        ref = by_seq.get(tt.hdr.seq)
+        if ref is None:
+            continue
+        for w, e in zip(WRISTS, ELBOWS, strict=True):
+            a, b = tt.targets[w], ref.targets[w]
+            ea, eb = tt.targets[e], ref.targets[e]
+            if not (a.valid and b.valid and ea.valid and eb.valid):
+                continue
+            elbow.append(100.0 * float(np.linalg.norm(ea.p - eb.p)))
+            rot.append(np.degrees(np.linalg.norm(pin.log3(quat_to_matrix(a.q) @ quat_to_matrix(b.q).T))))
+    return {"elbow_cm": _stats(np.array(elbow)), "wrist_rot_deg": _stats(np.array(rot)), "arm_frames": len(elbow)}
 
 
 def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:

@@ -46,31 +46,22 @@ def calibration_posture(
 ) -> np.ndarray:
     """Robot arm posture for the operator's calibration pose: wrist frame at ``wrist`` (3,) [m].
 
-    Damped least squares over the shoulder and elbow joints from the rest pose, wrist joints at
-    zero (the operator calibrates with relaxed, straight wrists). With ``elbow`` (3,) [m] the elbow
-    frame is placed too (use a reachable pair, see :mod:`.elbow`); without, the swivel stays near
+    The arm IK (:class:`.arm_ik.ArmIk`) over the shoulder and elbow joints from the rest pose, wrist
+    joints at zero (the operator calibrates with relaxed, straight wrists). With ``elbow`` (3,) [m] the
+    elbow frame is placed too (use a reachable pair, see :mod:`.elbow`); without, the swivel stays near
     the rest pose. Returns q (nq,) [rad] within the limits.
     """
-    import pinocchio as pin
+    from services.retarget.arm_ik import ArmIk
 
     roles = robot.profile.arms[side]
-    arm = robot.indices((*roles.shoulder, roles.elbow))
-    q = robot.q_rest.copy()
-    q[robot.indices(roles.wrist)] = 0.0
-    goals = [(robot.frame_id(wrist_of(side)), np.asarray(wrist, dtype=float))]
+    q0 = robot.q_rest.copy()
+    q0[robot.indices(roles.wrist)] = 0.0
+    ik = ArmIk(robot, (*roles.shoulder, roles.elbow), q0, damping=1e-6)
+    goals = [(ik.frame(wrist_of(side)), np.asarray(wrist, dtype=float), 1.0)]
     if elbow is not None:
-        goals.append((robot.frame_id(elbow_of(side)), np.asarray(elbow, dtype=float)))
-    for _ in range(iters):
-        data = robot.forward(q)
-        err = np.concatenate([p - data.oMf[f].translation for f, p in goals])
-        if np.linalg.norm(err) < 1e-7:
-            break
-        J = np.vstack(
-            [pin.computeFrameJacobian(robot.model, data, q, f, pin.LOCAL_WORLD_ALIGNED)[:3, arm] for f, _ in goals]
-        )
-        q[arm] += np.linalg.solve(J.T @ J + 1e-6 * np.eye(len(arm)), J.T @ err)
-        q = robot.clip(q)
-    return q
+        goals.append((ik.frame(elbow_of(side)), np.asarray(elbow, dtype=float), 1.0))
+    ik.solve(goals, iters=iters, tol=1e-7)
+    return ik.full()
 
 
 def calibration_orientations(

@@ -9,9 +9,11 @@ Per frame and per target (both wrists and elbows):
    or "incremental");
 2. its orientation goes through eq. (4) (:mod:`.orientation`); elbows carry it with
    ``use_rotation=False`` unless configured;
-3. linear and angular velocities are finite differences with the previous frame,
+3. with ``consistent_targets``, per arm the elbow position and the wrist orientation become those
+   of the arm posture that meets the wrist position and comes closest to both (:mod:`.consistent`);
+4. linear and angular velocities are finite differences with the previous frame,
    low-pass filtered (:mod:`.velocity`);
-4. a target whose bone is missing or invalid is published ``valid=False`` holding its
+5. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
 Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
@@ -34,6 +36,7 @@ from services.retarget.calibration import (
     anthropometric,
     from_wrists,
 )
+from services.retarget.consistent import ConsistentArm
 from services.retarget.elbow import ArmGeometry, human_swivel
 from services.retarget.intake import FrameIntake
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
@@ -126,6 +129,11 @@ class RetargetConfig:
             (needs ``elbow_placement="swivel"``). Off by default: its per-frame IK costs ~2 ms per
             frame (step p50 2.8 against 0.84 ms on byebye_happy), and only ``clik-mimicry`` and the
             posture-policy training read it; ``mimic retarget --upper-arms`` turns it on.
+        consistent_targets: per frame and arm, publish the elbow position and the wrist orientation of
+            the arm posture (waist at rest, within the joint ranges) that meets the wrist target and comes
+            closest to the mapped elbow and wrist orientation (``consistent.py``), so the three targets
+            are reachable together; the wrist position stays the mapped one. Arms without a valid
+            elbow (wrist-only sources) are left as mapped.
     """
 
     mode: str = MODES[0]
@@ -148,6 +156,7 @@ class RetargetConfig:
     source_timeout: float = 1.0
     arm_length: float = DEFAULT_ARM_LENGTH
     upper_arms: bool = False
+    consistent_targets: bool = False
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -222,6 +231,10 @@ class Retargeter(FrameIntake):
         if self.config.upper_arms and self.arms:
             for side in self.arms:
                 self.upper_arm_maps[side] = UpperArmSolver(self.robot, side, upper_arm_link(prof, side))
+        #: side -> the posture IK that makes the arm's published targets reachable together
+        self.consistent: dict[str, ConsistentArm] = (
+            {s: ConsistentArm(self.robot, s) for s in SIDES} if self.config.consistent_targets else {}
+        )
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -259,6 +272,8 @@ class Retargeter(FrameIntake):
         self._wfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
         for ua in getattr(self, "upper_arm_maps", {}).values():
             ua.reset()
+        for arm in getattr(self, "consistent", {}).values():
+            arm.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -530,6 +545,25 @@ class Retargeter(FrameIntake):
                 p = q
         return p
 
+    def _make_consistent(self, P: np.ndarray, R: np.ndarray, valid: list[bool], dt: float | None) -> None:
+        """Per arm with a valid wrist and elbow: the elbow row of ``P`` (4, 3) [m] and the wrist row of
+        ``R`` (4, 3, 3) (and the elbow's, with ``elbow_rotation``) become the targets of the arm
+        posture closest to them (:class:`.consistent.ConsistentArm`), in place. Warm-started from the
+        previous frame's posture; from rest after a gap (``max_gap``) or a new stream."""
+        gap = dt is None or dt > self.config.max_gap
+        for side, arm in self.consistent.items():
+            iw, ie = TARGET_NAMES.index(wrist_of(side)), TARGET_NAMES.index(elbow_of(side))
+            if not (valid[iw] and valid[ie]):
+                continue  # wrist-only (or invalid) arms are published as mapped
+            if gap:
+                arm.reset()
+            recoveries = arm.recoveries
+            P[ie], R[iw], elbow_R = arm(P[iw], P[ie], R[iw])
+            if arm.recoveries != recoveries:  # the warm posture was stuck (status: how often)
+                self.counts[f"consistent_recovered_{side}"] += 1
+            if self._use_rotation[ie]:
+                R[ie] = elbow_R
+
     def _targets(self, frame: HumanFrame, dt: float | None) -> dict[str, Target]:
         """All targets of one frame (wrists first: the swivel elbows need them).
 
@@ -580,6 +614,8 @@ class Retargeter(FrameIntake):
             for i in range(n):
                 if not valid[i]:
                     R[i] = self._held_R[i]
+        if self.consistent:
+            self._make_consistent(P, R, valid, dt)
         # Velocities: finite differences with the previous frame, low-passed; a target without a previous
         # sample restarts from zero.
         fresh = [v and h for v, h in zip(valid, self._has_prev, strict=True)]

@@ -9,18 +9,16 @@ its elbow axis is not normal to the shoulder-elbow-wrist plane, and the plane's 
 elbow folds past about 90 degrees, so such a frame is 10 degrees off the link, or upside down
 (measured over random postures).
 
-The posture is a damped Gauss-Newton least squares over the shoulder and elbow joints, warm-started
-from the previous frame's (a few iterations per frame, about 0.1 ms).
+The posture is the arm IK of :mod:`.arm_ik` over the shoulder and elbow joints, warm-started from
+the previous frame's (a few iterations per frame).
 """
 
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 
+from services.retarget.arm_ik import ArmIk
 from shared.robot.pinocchio_model import RobotModel
-
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 class UpperArmSolver:
@@ -33,41 +31,29 @@ class UpperArmSolver:
     """
 
     def __init__(self, robot: RobotModel, side: str, link: str, iters: int = 8, tol: float = 1e-4):
-        self.robot = robot
-        self.data = robot.model.createData()
-        names = list(robot.joint_names)
-        self.joints = [i for i, n in enumerate(names) if n.startswith(f"{side}_shoulder") or n == f"{side}_elbow_joint"]
-        self.q0 = robot.q_rest.copy()
-        for i, n in enumerate(names):
-            if n.startswith(f"{side}_wrist"):
-                self.q0[i] = 0.0
-        self.q = self.q0.copy()
-        self.f_elbow = robot.frame_id(f"{side}_elbow")
-        self.f_wrist = robot.frame_id(f"{side}_wrist")
-        self.f_link = robot.frame_id(link)
+        roles = robot.profile.arms[side]
+        q0 = robot.q_rest.copy()
+        q0[robot.indices(roles.wrist)] = 0.0
+        self.ik = ArmIk(robot, (*roles.shoulder, roles.elbow), q0)
+        #: the rest posture with the wrist joints at zero (robot.nq,) [rad], and the moved joints' indices in it
+        self.q0 = q0
+        self.joints = list(self.ik.idx)
+        self.f_elbow = self.ik.frame(f"{side}_elbow")
+        self.f_wrist = self.ik.frame(f"{side}_wrist")
+        self.f_link = self.ik.frame(link)
         self.iters = iters
         self.tol = tol
 
+    @property
+    def q(self) -> np.ndarray:
+        """The last posture as a robot configuration (robot.nq,) [rad] (wrist joints at zero)."""
+        return self.ik.full()
+
     def reset(self) -> None:
         """Start the next solve from the rest posture (a new stream)."""
-        self.q = self.q0.copy()
+        self.ik.reset()
 
     def __call__(self, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
         """Link orientation (3, 3) of the posture reaching ``elbow`` and ``wrist`` (3,) [m] (least squares)."""
-        model, data, q, J = self.robot.model, self.data, self.q, self.joints
-        lo, hi = self.robot.lower[J], self.robot.upper[J]
-        for _ in range(self.iters):
-            pin.computeJointJacobians(model, data, q)
-            pin.updateFramePlacements(model, data)
-            e = np.r_[elbow - data.oMf[self.f_elbow].translation, wrist - data.oMf[self.f_wrist].translation]
-            if e @ e < self.tol**2:
-                break
-            A = np.vstack(
-                [
-                    pin.getFrameJacobian(model, data, self.f_elbow, _LWA)[:3, J],
-                    pin.getFrameJacobian(model, data, self.f_wrist, _LWA)[:3, J],
-                ]
-            )
-            q[J] = np.clip(q[J] + np.linalg.solve(A.T @ A + 1e-4 * np.eye(len(J)), A.T @ e), lo, hi)
-        pin.framesForwardKinematics(model, data, q)
-        return data.oMf[self.f_link].rotation.copy()
+        self.ik.solve([(self.f_elbow, elbow, 1.0), (self.f_wrist, wrist, 1.0)], iters=self.iters, tol=self.tol)
+        return self.ik.pose(self.f_link)[1]

@@ -171,6 +171,8 @@ def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
     retarget = _settings(args)[3]  # what the retargeter is built with
     assert retarget["elbow_placement"] == cfg.elbow_placement
     assert retarget["orientation_reference"] == cfg.orientation_reference and retarget["mode"] == cfg.mode
+    assert retarget["consistent_targets"] == cfg.consistent_targets
+    assert _settings(_args(["x.bvh", "--json", "o.json", "--consistent-targets"]))[3]["consistent_targets"] is True
     # self-collision and the lock-up recovery: the solver's defaults unless --self-collision / --recovery on|off
     # say otherwise
     assert "self_collision" not in _settings(args)[1] and "recovery" not in _settings(args)[1]
