@@ -15,6 +15,7 @@ from tqdm import tqdm
 from services.evaluation.metrics import (
     REACHABLE_TOL,
     compare,
+    operator_errors,
     reachable_mask,
     summarise,
     target_adjustment,
@@ -169,6 +170,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             bar.update(len(runs))
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
+        plain = None
         if retarget.get("consistent_targets"):
             _, plain = load_and_retarget(
                 Path(path), robot, None, {**retarget, "consistent_targets": False}, getattr(args, "skeleton_map", None)
@@ -194,6 +196,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                     mask = reachable_mask(tr)
                 if algo in algos or wrist_only:
                     entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
+                    if plain is not None:
+                        entry["algos"][label] |= operator_errors(tr, plain)
                     traces[(clip.name, label)] = tr
             except Exception as exc:  # one failed run must not lose the others' results
                 log.error(

@@ -51,6 +51,41 @@ def target_adjustment(plain: list, published: list) -> dict:
     return {"elbow_cm": _stats(np.array(elbow)), "wrist_rot_deg": _stats(np.array(rot)), "arm_frames": len(elbow)}
 
 
+def operator_errors(trace: Trace, plain: list) -> dict:
+    """The robot at each frame's instant against that frame's *plain* retargeted targets [cm, deg].
+
+    With ``consistent_targets`` the solver tracks targets moved towards what the arm can do, and every other
+    error block is measured against those; these are measured against the targets the operator's motion
+    gave before that move (as :func:`frame_errors`: the command of the tick before the frame's arrival tick).
+
+    Args:
+        plain: TaskTargets of the clip without the option (matched to the trace's frames by seq).
+
+    Returns:
+        ``wrist_err_cm_vs_operator``, ``elbow_err_cm_vs_operator``, ``wrist_rot_err_deg_vs_operator``.
+    """
+    by_seq = {tt.hdr.seq: tt for tt in plain}
+    pos: dict[str, list[float]] = {"wrist": [], "elbow": []}
+    rot: list[float] = []
+    for tick, seq in zip(trace.frame_tick, trace.frame_seq, strict=True):
+        ref = by_seq.get(int(seq))
+        if ref is None or tick < 1:
+            continue
+        for n, tg in ref.targets.items():
+            if not tg.valid or n not in trace.kin_p:
+                continue
+            pos["wrist" if n in WRISTS else "elbow"].append(
+                100.0 * float(np.linalg.norm(trace.kin_p[n][tick - 1] - tg.p))
+            )
+            if n in WRISTS and n in trace.kin_R:
+                rot.append(np.degrees(np.linalg.norm(pin.log3(quat_to_matrix(tg.q).T @ trace.kin_R[n][tick - 1]))))
+    return {
+        "wrist_err_cm_vs_operator": _stats(np.array(pos["wrist"])),
+        "elbow_err_cm_vs_operator": _stats(np.array(pos["elbow"])),
+        "wrist_rot_err_deg_vs_operator": _stats(np.array(rot)),
+    }
+
+
 def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
     """side -> (K,) bool: the wrist target the tick tracks (its frame's) passed the IK check."""
     index = {int(s): k for k, s in enumerate(report.seq)}

@@ -58,8 +58,9 @@ class Trace:
         collide: (K,) bool, an arm in penetration (sim contacts; kinematic clearance < 0 without sim,
             on the clearance ticks only). clearance: (K,) smallest arm clearance [m] (NaN between
             clearance ticks). dt: control period [s].
-        frame_tick: (F,) index of the scored tick each frame arrived on; frame_p: target -> (F, 3) the
-            frame's own target position [m] (no extrapolation); frame_ok: target -> (F,) valid.
+        frame_tick: (F,) index of the scored tick each frame arrived on; frame_seq: (F,) its seq;
+            frame_p: target -> (F, 3) the frame's own target position [m] (no extrapolation); frame_ok:
+            target -> (F,) valid.
     """
 
     algo: str
@@ -80,6 +81,7 @@ class Trace:
     collide: np.ndarray | None = None
     clearance: np.ndarray | None = None
     frame_tick: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    frame_seq: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     frame_p: dict[str, np.ndarray] = field(default_factory=dict)
     frame_ok: dict[str, np.ndarray] = field(default_factory=dict)
     dt: float = 0.002
@@ -214,12 +216,14 @@ class _Recorder:
         self.sim_p = {n: [] for n in TARGET_NAMES}
         self.sim_R = {n: [] for n in WRISTS}
         self.frame_tick: list[int] = []
+        self.frame_seq: list[int] = []
         self.frame_p = {n: [] for n in TARGET_NAMES}
         self.frame_ok = {n: [] for n in TARGET_NAMES}
 
     def frame(self, msg: TaskTargets) -> None:
         """A frame arriving on the tick about to be recorded: its own targets, for the frame errors."""
         self.frame_tick.append(len(self.rec["t"]))
+        self.frame_seq.append(msg.hdr.seq)
         for n in TARGET_NAMES:
             tg = msg.targets.get(n)
             self.frame_ok[n].append(tg is not None and tg.valid)
@@ -287,6 +291,7 @@ class _Recorder:
             collide=rec["collide"].astype(bool) if self.coll is not None else None,
             clearance=rec["clear"].astype(float) if self.coll is not None else None,
             frame_tick=np.asarray(self.frame_tick, dtype=int),
+            frame_seq=np.asarray(self.frame_seq, dtype=int),
             frame_p=arr(self.frame_p),
             frame_ok=arr(self.frame_ok),
             dt=dt,

@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from services.evaluation.metrics import target_adjustment
+from services.evaluation.metrics import operator_errors, target_adjustment
 from shared.messages import Header, Target, TaskTargets
 from shared.rotations import matrix_to_quat
 from shared.targets import TARGET_NAMES
@@ -33,3 +33,34 @@ def test_adjustment_is_the_elbow_distance_and_the_hand_angle_per_arm_frame():
     # identical streams: nothing moved
     same = target_adjustment(plain, plain)
     assert same["elbow_cm"]["max"] == 0.0 and same["wrist_rot_deg"]["max"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_operator_errors_score_the_robot_against_the_plain_targets_frame_by_frame(robot17):
+    from tests.evaluation.test_metrics import synthetic_trace
+
+    tr = synthetic_trace(robot17, {})
+    ticks = np.array([0, 5, 9, 13])  # tick 0: the frame arrived before any command was scored, not counted
+    tr.frame_tick, tr.frame_seq = ticks, np.arange(len(ticks)) + 7
+    plain = []
+    for seq, tick in zip(tr.frame_seq, ticks, strict=True):
+        tg = {}
+        for n in TARGET_NAMES:
+            # the operator's elbow 4 cm from where the robot's is; the hand turned 12 deg from the robot's
+            p = tr.kin_p[n][tick - 1] + (np.array([0.0, 0.04, 0.0]) if n.endswith("elbow") else 0.0)
+            R = (
+                tr.kin_R[n][tick - 1] @ pin.exp3(np.radians(12.0) * np.array([1.0, 0.0, 0.0]))
+                if n in tr.kin_R
+                else None
+            )
+            q = matrix_to_quat(R) if R is not None else np.array([1.0, 0.0, 0.0, 0.0])
+            tg[n] = Target(p, q, np.zeros(3), np.zeros(3), True, n.endswith("wrist"))
+        plain.append(TaskTargets(Header(int(seq), 0.0, 0), tg))
+    m = operator_errors(tr, plain)
+    assert m["elbow_err_cm_vs_operator"]["mean"] == pytest.approx(4.0) and m["elbow_err_cm_vs_operator"][
+        "max"
+    ] == pytest.approx(4.0)
+    assert m["wrist_err_cm_vs_operator"]["max"] == pytest.approx(0.0, abs=1e-12)
+    assert m["wrist_rot_err_deg_vs_operator"]["mean"] == pytest.approx(12.0)
+    # 3 frames x 2 arms scored (the frame on tick 0 and a seq the plain stream lacks are skipped)
+    tr.frame_seq[1] = 99
+    assert operator_errors(tr, plain)["elbow_err_cm_vs_operator"]["mean"] == pytest.approx(4.0)
