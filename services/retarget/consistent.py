@@ -17,6 +17,10 @@ stream or after a gap.
 
 Weights (of the least squares, see :data:`WRIST_WEIGHT`): the wrist position is the hard goal, and
 the elbow [m] and the wrist orientation [rad] trade at :data:`ORIENTATION_WEIGHT` metres per radian.
+
+An option, not the default: with the waist at rest here, the published elbows sit further from the
+operator's than the solver gets with the plain targets, which it reaches with the waist (measured with
+``mimic eval --consistent-targets``' ``*_vs_operator`` errors; figures in the retarget README).
 """
 
 from __future__ import annotations
