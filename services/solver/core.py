@@ -143,10 +143,10 @@ class SolverConfig:
         recovery: lead an arm out of a lock-up (wrist tracked, elbow far off and not closing in, an arm joint at a
             stop: ``recovery.RecoveryConfig``) through a position-level IK posture, in the wrists' null space
             (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
-            no level to put it on; not on wrist-only ticks (their elbow targets are predictions). On by default:
-            a guard for motion we have not seen. With the shipped settings it never fires on the 25 clips (every
-            figure the same); with ``saturation_weight`` 2 it takes kick_normal out of its elbow-hyperextension
-            lock (elbow mean 5.4 -> 2.7 cm).
+            no level to put it on; not on wrist-only ticks (their elbow targets, a policy's too, are
+            predictions). On by default: a guard for motion we have not seen. With the shipped settings it never
+            fires on the 25 clips (every figure the same); with ``saturation_weight`` 2 it takes kick_normal out of
+            its elbow-hyperextension lock (elbow mean 5.4 -> 2.7 cm).
         range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
             stops on level 2, beside the elbows (``centring.RangeCentringTask``), strict hierarchies only
             (hqp-nullspace, hqp-original); 0 = off. It removes the wave-left-hand lock-up (elbow mean /
@@ -675,9 +675,11 @@ class SolverCore:
         if self.centring_task is not None:
             self.centring_task.update(self.q_raw)
         # Not on wrist-only ticks: the elbow targets there are predictions (or a rest pull), not the operator's.
+        # An elbow-kind policy's arm has left ``wrist_only`` (it keeps its elbow task), so it is checked apart.
         if (
             self.recovery is not None
             and not self.wrist_only
+            and not self.policy_elbow
             and self.recovery.update(self.configuration, self.wrist_tasks, self.elbow_tasks, t, self._level1_met)
         ):
             # Right below the wrists: the arm moves to the IK posture without touching level 1.

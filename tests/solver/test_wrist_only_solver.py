@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from services.solver.core import SolverConfig, SolverCore
+from services.solver.recovery import LockupRecovery, RecoveryConfig
 from shared.kinematics import JointVelocityTask
 from shared.messages import Header, Target, TaskTargets
 from shared.robot.pinocchio_model import build_robot_model
@@ -40,8 +41,10 @@ def wrist_stream(robot, n: int) -> list[TaskTargets]:
     return out
 
 
-def run(robot, cfg: SolverConfig, stream: list[TaskTargets]):
+def run(robot, cfg: SolverConfig, stream: list[TaskTargets], recovery: RecoveryConfig | None = None):
     core = SolverCore(robot, cfg)
+    if recovery is not None:
+        core.recovery = LockupRecovery(robot, recovery)
     q, cmds = [], []
     per_frame = int(RATE / 30.0)
     for k, msg in enumerate(stream):
@@ -57,6 +60,8 @@ def test_wrist_only_targets_get_a_posture_level_not_a_held_status(robot17):
     assert core.wrist_only == ("left", "right")
     levels = core._levels_for(core.wrist_only)
     assert any(isinstance(t, JointVelocityTask) for t in levels[-2])  # just above the rest posture
+    assert not any(isinstance(t, JointVelocityTask) for t in levels[1])  # not beside the wrist orientations
+    assert all(any(t is o for t in levels[1]) for o in core.orientation_tasks)
     assert not any(t in lv for lv in levels for t in core.elbow_tasks)
     statuses = {c.status for c in cmds[10:]}
     assert "held" not in statuses and "ok" in statuses  # missing elbows are not a fault here
@@ -105,33 +110,40 @@ def test_policy_for_another_robot_is_refused(robot17, tmp_path):
         SolverCore(robot17, SolverConfig(posture_policy=str(tmp_path / "other.npz")))
 
 
-def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_path):
-    """An elbow-kind policy's point goes to the arm's own elbow task; the wrists stay where they were."""
-    stream = wrist_stream(robot17, 24)
-    base = SolverConfig(qp="daqp", rate=RATE, smoothing=False, self_collision=False)
-    rest = robot17.frame_poses(robot17.q_rest)
-    # Elbows 8 cm out to the side of their rest place: reachable by swivelling, away from the rest pull.
+def _elbow_policy_and_full_streams(robot, tmp_path, n: int):
+    """(policy file, its elbow point per side [m], wrist-only stream, full stream): an elbow-kind policy that
+    predicts elbows 8 cm out to the side of their rest place (reachable by swivelling, away from the rest pull),
+    and the same stream with those points as the operator's elbows (positions only, as the retargeter sends
+    elbows by default)."""
+    stream = wrist_stream(robot, n)
+    rest = robot.frame_poses(robot.q_rest)
     # (float32-representable: the policy computes in float32, and the infeasible first ticks make the QP
     # sensitive to a 1e-8 m change of target)
     target = {s: np.float32(rest[f"{s}_elbow"][0] + [0.0, 0.08 if s == "left" else -0.08, 0.0]).astype(float)
               for s in ("left", "right")}  # fmt: skip
-    path = write_random_policy(tmp_path / "elbow.npz", robot17, threshold=1e3, elbow=target)
+    path = write_random_policy(tmp_path / "elbow.npz", robot, threshold=1e3, elbow=target)
+    still = {f"{s}_elbow": Target(target[s], np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), use_rotation=False)
+             for s in target}  # fmt: skip
+    return path, target, stream, [TaskTargets(m.hdr, {**m.targets, **still}) for m in stream]
+
+
+def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_path):
+    """An elbow-kind policy's point goes to the arm's own elbow task; the wrists stay where they were."""
+    path, target, stream, full = _elbow_policy_and_full_streams(robot17, tmp_path, 24)
+    base = SolverConfig(qp="daqp", rate=RATE, smoothing=False, self_collision=False)
     _c0, q_rest, _ = run(robot17, base, stream)
     core, q_pol, cmds = run(robot17, replace(base, posture_policy=str(path)), stream)
     assert core.counts["policy_ticks"] > 0 and core.counts["gate_closed"] == 0
     assert core.wrist_only == () and set(core.policy_elbow) == {"left", "right"}
     levels = core._levels_for(core.wrist_only)
-    assert all(any(t is e for t in levels[1]) for e in core.elbow_tasks)  # on the elbow level, as with full targets
+    # on the elbow level beside the wrist orientations, as with full targets
+    assert all(any(t is e for t in levels[1]) for e in [*core.elbow_tasks, *core.orientation_tasks])
     assert not any(isinstance(t, JointVelocityTask) for lv in levels for t in lv)
     for s in ("left", "right"):
         task = next(t for t in core.elbow_tasks if t.frame == f"{s}_elbow")
         np.testing.assert_array_equal(task.p_target, target[s])
     # Exactly what the solver does with full targets whose elbows are that point (at rest): the
     # prediction takes the place of the operator's elbow, nothing else changes.
-    # (positions only, as the retargeter sends elbows by default)
-    still = {f"{s}_elbow": Target(target[s], np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), use_rotation=False)
-             for s in target}  # fmt: skip
-    full = [TaskTargets(m.hdr, {**m.targets, **still}) for m in stream]
     _cf, q_full, _ = run(robot17, base, full)
     np.testing.assert_allclose(q_pol, q_full, atol=1e-9)
     half = len(q_pol) // 2  # after the arms have had time to swivel
@@ -148,6 +160,21 @@ def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_p
     assert "held" not in {c.status for c in cmds[10:]}
     for q in q_pol:
         assert np.all(q >= robot17.lower - 1e-12) and np.all(q <= robot17.upper + 1e-12)
+
+
+def test_lockup_recovery_never_acts_on_a_predicted_elbow(robot17, tmp_path):
+    """The recovery leads an arm to the operator's elbow; an elbow-kind policy's point is a prediction, so on
+    wrist-only ticks the recovery stays out even though that arm keeps its elbow task."""
+    path, _target, stream, full = _elbow_policy_and_full_streams(robot17, tmp_path, 24)
+    base = SolverConfig(qp="daqp", rate=RATE, smoothing=False, self_collision=False, recovery=True)
+    # A trigger without its lock conditions (as in test_lockup_recovery.py): it fires on any elbow > 5 cm off.
+    loose = RecoveryConfig(trigger_time=0.02, wrist_tolerance=0.02, stop_margin=np.inf, min_progress=np.inf,
+                           met_fraction=0)  # fmt: skip
+    c_full, _q, _ = run(robot17, base, full, loose)
+    c_pol, _q, _ = run(robot17, replace(base, posture_policy=str(path)), stream, loose)
+    assert c_full.counts["recoveries"] >= 1  # the same elbow points as the operator's: the recovery acts
+    assert c_pol.counts["policy_ticks"] > 0 and c_pol.counts["gate_closed"] == 0
+    assert c_pol.counts["recoveries"] == 0
 
 
 def test_swivel_kind_policy_gives_the_elbow_task_its_angle_on_the_wrist_targets_circle(robot17, tmp_path):
