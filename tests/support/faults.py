@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import itertools
 import json
 import subprocess
@@ -67,8 +68,15 @@ def running_stack(names=PIPELINE, extra: dict[str, list[str]] | None = None, cli
                 obs.wait_until(
                     lambda: any(s.seq > 0 and not s.holding for s in obs.states[-50:]), 60, "frames reaching the sim"
                 )
+            # The observer lives in this (test) process: its Zenoh callbacks need the interpreter, and a full
+            # garbage collection over everything a long pytest run has built (a gen-2 pass over the imports alone
+            # takes ~0.1 s here) stalls them, which reads as the stack pausing. Objects made before the scenario
+            # are set aside from collection while it runs (the stack's processes are not affected).
+            gc.collect()
+            gc.freeze()
             yield stack, obs
         finally:
+            gc.unfreeze()
             obs.close()
 
 
