@@ -26,6 +26,7 @@ posture, or after ``max_time``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -141,8 +142,11 @@ class LockupRecovery:
         cfg = self.config
         for side, wt, et in zip(SIDES, wrist_tasks, elbow_tasks):
             st = self.state[side]
-            e_el = float(np.linalg.norm(et.p_target - conf.get_frame_pose(et.frame)[0]))
-            e_wr = float(np.linalg.norm(wt.p_target - conf.get_frame_pose(wt.frame)[0]))
+            d = et.p_target - conf.get_frame_pose(et.frame)[0]
+            e_el = math.sqrt(float(d @ d))  # (np.linalg.norm costs more than the rest of a quiet tick's check)
+            if st.active_since is None and e_el <= cfg.trigger_error:
+                st.off_since = None  # the elbow is near its target: no lock (most ticks end here)
+                continue
             if st.active_since is not None:
                 near = np.max(np.abs(conf.q[self.arm_joints[side]] - st.q_ik[self.arm_joints[side]]))
                 if e_el < cfg.release_error or near < cfg.release_distance or t - st.active_since > cfg.max_time:
@@ -155,7 +159,8 @@ class LockupRecovery:
                         st.q_ik = q
                     st.refreshed = t
                 continue
-            if e_el > cfg.trigger_error and e_wr < cfg.wrist_tolerance and self.at_stop(conf.q, side):
+            d = wt.p_target - conf.get_frame_pose(wt.frame)[0]
+            if math.sqrt(float(d @ d)) < cfg.wrist_tolerance and self.at_stop(conf.q, side):
                 if st.off_since is None:
                     st.off_since, st.off_error, st.ticks, st.met = t, e_el, 0, 0
                 st.ticks += 1
