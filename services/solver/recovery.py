@@ -26,7 +26,6 @@ posture, or after ``max_time``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +33,7 @@ import pinocchio as pin
 
 from shared.kinematics import Configuration, PostureTask, Task
 from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import norm3
 from shared.targets import ELBOWS, SIDES, WRISTS
 
 
@@ -142,8 +142,7 @@ class LockupRecovery:
         cfg = self.config
         for side, wt, et in zip(SIDES, wrist_tasks, elbow_tasks):
             st = self.state[side]
-            d = et.p_target - conf.get_frame_pose(et.frame)[0]
-            e_el = math.sqrt(float(d @ d))  # (np.linalg.norm costs more than the rest of a quiet tick's check)
+            e_el = norm3(et.p_target - conf.get_frame_pose(et.frame)[0])  # (np.linalg.norm cost more)
             if st.active_since is None and e_el <= cfg.trigger_error:
                 st.off_since = None  # the elbow is near its target: no lock (most ticks end here)
                 continue
@@ -159,8 +158,9 @@ class LockupRecovery:
                         st.q_ik = q
                     st.refreshed = t
                 continue
-            d = wt.p_target - conf.get_frame_pose(wt.frame)[0]
-            if math.sqrt(float(d @ d)) < cfg.wrist_tolerance and self.at_stop(conf.q, side):
+            if norm3(wt.p_target - conf.get_frame_pose(wt.frame)[0]) < cfg.wrist_tolerance and self.at_stop(
+                conf.q, side
+            ):
                 if st.off_since is None:
                     st.off_since, st.off_error, st.ticks, st.met = t, e_el, 0, 0
                 st.ticks += 1
