@@ -33,6 +33,13 @@ from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
 log = logging.getLogger("mimic.eval")
+#: Retarget options that move the published targets away from the plain retargeted ones (flag help):
+#: with any of them on, each clip is also retargeted without them and scored against that too.
+MOVING_OPTIONS = {
+    "consistent_targets": "publish per arm the elbow and wrist orientation of the posture meeting the wrist target",
+    "wrist_range": "clip the wrist orientation targets into the wrist joints' ranges",
+    "forearm_blend": "fade the forearm alignment of the wrist orientation as an arm straightens, not switch",
+}
 PAPER = {
     "hqp-nullspace": {"wrist_err_cm": {"mean": 0.12, "max": 0.65}, "elbow_err_cm": {"mean": 0.75, "max": 2.10}},
     "wqp": {"wrist_err_cm": {"mean": 0.22, "max": 2.50}, "elbow_err_cm": {"mean": 5.58, "max": 9.53}},
@@ -81,14 +88,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=RetargetConfig().velocity_tau,
         help="retarget velocity low-pass time constant [s] (default: the service's)",
     )
-    p.add_argument(
-        "--consistent-targets",
-        action=argparse.BooleanOptionalAction,
-        default=RetargetConfig().consistent_targets,
-        help="publish per arm the elbow and wrist orientation of the posture meeting the wrist target "
-        "(RetargetConfig.consistent_targets; default: the service's); the JSON then gives, per clip, how far "
-        "they moved from the plain retargeted ones (target_adjustment)",
-    )
+    for field, text in MOVING_OPTIONS.items():
+        p.add_argument(
+            f"--{field.replace('_', '-')}",
+            action=argparse.BooleanOptionalAction,
+            default=getattr(RetargetConfig(), field),
+            help=f"{text} (RetargetConfig.{field}; default: the service's); the JSON then gives, per clip, how "
+            "far the targets moved from the plain retargeted ones (target_adjustment) and the errors against "
+            "those (*_vs_operator)",
+        )
     p.add_argument(
         "--no-ik-check",
         action="store_true",
@@ -171,10 +179,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
         plain = None
-        if retarget.get("consistent_targets"):
-            _, plain = load_and_retarget(
-                Path(path), robot, None, {**retarget, "consistent_targets": False}, getattr(args, "skeleton_map", None)
-            )
+        if any(retarget.get(k) for k in MOVING_OPTIONS):
+            # what the operator's motion gave before the targets were moved towards what the arm can do
+            unmoved = {**retarget, **dict.fromkeys(MOVING_OPTIONS, False)}
+            _, plain = load_and_retarget(Path(path), robot, None, unmoved, getattr(args, "skeleton_map", None))
             entry["target_adjustment"] = target_adjustment(plain, targets)
         report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
@@ -231,8 +239,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
 
 
 def _adjustment_summary(clips: list[dict]) -> dict:
-    """``target_adjustment`` over clips (empty without consistent targets): the arm-frame weighted mean,
-    the worst clip's p99 and the largest max, per quantity."""
+    """``target_adjustment`` over clips (empty without a :data:`MOVING_OPTIONS` option): the arm-frame weighted
+    mean, the worst clip's p99 and the largest max, per quantity."""
     rows = [c["target_adjustment"] for c in clips if c.get("target_adjustment", {}).get("arm_frames")]
     if not rows:
         return {}
@@ -300,7 +308,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
-    retarget["consistent_targets"] = getattr(args, "consistent_targets", defaults.consistent_targets)
+    for k in MOVING_OPTIONS:
+        retarget[k] = getattr(args, k, getattr(defaults, k))
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget

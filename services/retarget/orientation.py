@@ -123,13 +123,39 @@ def arm_frame(upper: np.ndarray, fore: np.ndarray) -> np.ndarray | None:
     return np.array([x, cross3(z, x), z]).T
 
 
-def arm_alignment(up_H: np.ndarray, fore_H: np.ndarray, up_U: np.ndarray, fore_U: np.ndarray) -> np.ndarray:
+#: sin of the elbow angle from which the arm plane is trusted fully when blending (:func:`arm_alignment`).
+PLANE_SIN = 2.0 * STRAIGHT_SIN
+
+
+def _plane_weight(upper: np.ndarray, fore: np.ndarray) -> float:
+    """0 at an elbow bend of sin STRAIGHT_SIN or less, 1 from PLANE_SIN, smooth (C1) in between."""
+    s = norm3(cross3(upper / norm3(upper), fore / norm3(fore)))
+    x = min(max((s - STRAIGHT_SIN) / (PLANE_SIN - STRAIGHT_SIN), 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def arm_alignment(
+    up_H: np.ndarray, fore_H: np.ndarray, up_U: np.ndarray, fore_U: np.ndarray, blend: bool = False
+) -> np.ndarray:
     """Rotation (3, 3) taking the operator's forearm frame onto the robot's (smallest rotation of the
-    forearm directions when either arm is straight)."""
+    forearm directions when either arm is straight).
+
+    The switch between the two at STRAIGHT_SIN is a jump: the frames' rotation about the forearm, up to
+    ~18 deg in one frame on the real clips (kick_normal, byebye_happy, guide_active). With ``blend`` the
+    rotation about the forearm is scaled from none (either arm at STRAIGHT_SIN) to all (both past
+    PLANE_SIN), so the result is continuous in the arm directions.
+    """
     F_H, F_U = arm_frame(up_H, fore_H), arm_frame(up_U, fore_U)
     if F_H is None or F_U is None:
         return align(fore_H, fore_U)
-    return F_U @ F_H.T
+    A = F_U @ F_H.T
+    if not blend:
+        return A
+    w = min(_plane_weight(up_H, fore_H), _plane_weight(up_U, fore_U))
+    if w >= 1.0:
+        return A
+    A0 = align(fore_H, fore_U)  # A0^T A turns about the operator's forearm only
+    return A0 @ pin.exp3(w * pin.log3(A0.T @ A))
 
 
 class ForearmOrientationMap(OrientationMap):

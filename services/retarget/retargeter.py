@@ -9,11 +9,13 @@ Per frame and per target (both wrists and elbows):
    or "incremental");
 2. its orientation goes through eq. (4) (:mod:`.orientation`); elbows carry it with
    ``use_rotation=False`` unless configured;
-3. with ``consistent_targets``, per arm the elbow position and the wrist orientation become those
+3. with ``wrist_range``, each wrist orientation is clipped into the wrist joints' ranges relative to the
+   forearm its elbow and wrist targets imply (:mod:`.wrist_range`);
+4. with ``consistent_targets``, per arm the elbow position and the wrist orientation become those
    of the arm posture that meets the wrist position and comes closest to both (:mod:`.consistent`);
-4. linear and angular velocities are finite differences with the previous frame,
+5. linear and angular velocities are finite differences with the previous frame,
    low-pass filtered (:mod:`.velocity`);
-5. a target whose bone is missing or invalid is published ``valid=False`` holding its
+6. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
 Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
@@ -51,6 +53,7 @@ from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
 from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
+from services.retarget.wrist_range import WristRange
 from shared.messages import Bone, Header, HumanFrame, Target, TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
@@ -134,6 +137,13 @@ class RetargetConfig:
             closest to the mapped elbow and wrist orientation (``consistent.py``), so the three targets
             are reachable together; the wrist position stays the mapped one. Arms without a valid
             elbow (wrist-only sources) are left as mapped.
+        wrist_range: clip each wrist orientation target into the wrist joints' ranges (less the solver's
+            headroom), relative to the robot forearm that its elbow and wrist targets imply
+            (:mod:`.wrist_range`; needs ``elbow_placement="swivel"``), so the hand never asks for a wrist
+            angle past a stop. Off by default: see the retarget README for the measurement.
+        forearm_blend: with ``orientation_reference="forearm"``, fade the forearm frames' rotation about the
+            forearm in and out as either arm straightens (:func:`.orientation.arm_alignment`), instead of
+            the switch at ``STRAIGHT_SIN`` (a jump of up to ~18 deg per frame in the wrist target).
     """
 
     mode: str = MODES[0]
@@ -157,6 +167,8 @@ class RetargetConfig:
     arm_length: float = DEFAULT_ARM_LENGTH
     upper_arms: bool = False
     consistent_targets: bool = False
+    wrist_range: bool = False
+    forearm_blend: bool = False
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -235,6 +247,12 @@ class Retargeter(FrameIntake):
         self.consistent: dict[str, ConsistentArm] = (
             {s: ConsistentArm(self.robot, s) for s in SIDES} if self.config.consistent_targets else {}
         )
+        #: side -> the projection of the wrist orientation into the wrist joints' ranges (``wrist_range``)
+        self.wrist_ranges: dict[str, WristRange] = (
+            {s: WristRange(self.robot, s, self.arms[s].centre) for s in self.arms}
+            if self.config.wrist_range and self.config.elbow_placement == "swivel"
+            else {}
+        )
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -274,6 +292,8 @@ class Retargeter(FrameIntake):
             ua.reset()
         for arm in getattr(self, "consistent", {}).values():
             arm.reset()
+        for wr in getattr(self, "wrist_ranges", {}).values():
+            wr.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -457,7 +477,11 @@ class Retargeter(FrameIntake):
                 sh = np.asarray(frame.bones[f"{side}_shoulder"].p, dtype=float)
                 h_el = cal.rest[elbow_of(side)]
                 A = arm_alignment(
-                    h_el - sh, cal.rest[t] - h_el, elbows[side] - self.arms[side].centre, rest[t] - elbows[side]
+                    h_el - sh,
+                    cal.rest[t] - h_el,
+                    elbows[side] - self.arms[side].centre,
+                    rest[t] - elbows[side],
+                    self.config.forearm_blend,
                 )
                 self._rot_map[t] = ForearmOrientationMap(quat_to_matrix(cal.rest_q[t]), ref[t], A)
             else:
@@ -607,13 +631,23 @@ class Retargeter(FrameIntake):
                 if placed is not None:
                     elbow, h_sh, h_el = placed
                     c = self.arms[side].centre
-                    left[i] = arm_alignment(h_el - h_sh, H[i] - h_el, elbow - c, P[i] - elbow)
+                    left[i] = arm_alignment(
+                        h_el - h_sh, H[i] - h_el, elbow - c, P[i] - elbow, self.config.forearm_blend
+                    )
                     right[i] = rot_map.right
         R = left @ quats_to_matrices(Q) @ right
         if not all_valid:
             for i in range(n):
                 if not valid[i]:
                     R[i] = self._held_R[i]
+        for side, wr in self.wrist_ranges.items():
+            iw, ie = TARGET_NAMES.index(wrist_of(side)), TARGET_NAMES.index(elbow_of(side))
+            if valid[iw] and valid[ie]:  # (the forearm needs both; wrist-only arms are published as mapped)
+                R_in = R[iw]
+                out = wr(R_in, P[ie], P[iw])
+                if out is not R_in:  # (returned as given when within the ranges)
+                    R[iw] = out
+                    self.counts[f"wrist_range_{side}"] += 1
         if self.consistent:
             self._make_consistent(P, R, valid, dt)
         # Velocities: finite differences with the previous frame, low-passed; a target without a previous

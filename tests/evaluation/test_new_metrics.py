@@ -173,6 +173,10 @@ def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
     assert retarget["orientation_reference"] == cfg.orientation_reference and retarget["mode"] == cfg.mode
     assert retarget["consistent_targets"] == cfg.consistent_targets
     assert _settings(_args(["x.bvh", "--json", "o.json", "--consistent-targets"]))[3]["consistent_targets"] is True
+    assert retarget["wrist_range"] == cfg.wrist_range and retarget["forearm_blend"] == cfg.forearm_blend
+    for flag in ("wrist_range", "forearm_blend"):
+        on = _settings(_args(["x.bvh", "--json", "o.json", f"--{flag.replace('_', '-')}"]))[3]
+        assert on[flag] is True
     # self-collision and the lock-up recovery: the solver's defaults unless --self-collision / --recovery on|off
     # say otherwise
     assert "self_collision" not in _settings(args)[1] and "recovery" not in _settings(args)[1]

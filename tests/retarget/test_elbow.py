@@ -81,3 +81,27 @@ def test_forearm_map_gives_calibration_orientation_and_follows_the_forearm():
     G, G2 = pin.exp3(np.array([0.3, -0.2, 0.5])), pin.exp3(np.array([-0.1, 0.4, 0.2]))
     A = arm_alignment(G @ up_H, G @ fore_H, G2 @ up_U, G2 @ fore_U)
     np.testing.assert_allclose(m.with_alignment(G @ R_H0, A), G2 @ R_U0, atol=1e-9)
+
+
+def test_forearm_blend_makes_the_alignment_continuous_as_the_arm_straightens():
+    """The operator's arm straightens in the y-z plane (normal x) while the robot's stays bent in the x-z plane
+    (normal y): the frames' alignment carries a 90 deg turn about the forearm that the straight-arm fallback
+    does not. Switching at STRAIGHT_SIN jumps by it in one step; blended, the alignment moves by a few degrees
+    per 0.002 rad step, and is the unblended one while both arms are well bent."""
+    up_H, up_U = np.array([0.0, 0.0, -0.28]), np.array([0.0, 0.0, -0.19])
+    fore_U = 0.2 * np.array([np.sin(0.6), 0.0, -np.cos(0.6)])
+    steps = {}
+    for blend in (False, True):
+        prev, worst = None, 0.0
+        for theta in np.arange(0.5, 0.0, -0.002):
+            A = arm_alignment(up_H, 0.25 * np.array([0.0, np.sin(theta), -np.cos(theta)]), up_U, fore_U, blend)
+            if prev is not None:
+                worst = max(worst, float(np.degrees(np.linalg.norm(pin.log3(prev.T @ A)))))
+            prev = A
+        steps[blend] = worst
+    assert steps[False] > 45.0
+    assert steps[True] < 4.0
+    fore_H = 0.25 * np.array([0.0, np.sin(0.5), -np.cos(0.5)])
+    np.testing.assert_allclose(
+        arm_alignment(up_H, fore_H, up_U, fore_U, True), arm_alignment(up_H, fore_H, up_U, fore_U)
+    )
