@@ -38,7 +38,6 @@ log = logging.getLogger("mimic.eval")
 MOVING_OPTIONS = {
     "consistent_targets": "publish per arm the elbow and wrist orientation of the posture meeting the wrist target",
     "wrist_range": "clip the wrist orientation targets into the wrist joints' ranges",
-    "forearm_blend": "fade the forearm alignment of the wrist orientation as an arm straightens, not switch",
 }
 PAPER = {
     "hqp-nullspace": {"wrist_err_cm": {"mean": 0.12, "max": 0.65}, "elbow_err_cm": {"mean": 0.75, "max": 2.10}},
@@ -97,6 +96,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             "far the targets moved from the plain retargeted ones (target_adjustment) and the errors against "
             "those (*_vs_operator)",
         )
+    p.add_argument(
+        "--forearm-blend",
+        action=argparse.BooleanOptionalAction,
+        default=RetargetConfig().forearm_blend,
+        help="fade the forearm alignment of the wrist orientation as an arm straightens instead of switching "
+        "(RetargetConfig.forearm_blend; default: the service's)",
+    )
     p.add_argument(
         "--no-ik-check",
         action="store_true",
@@ -308,7 +314,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
-    for k in MOVING_OPTIONS:
+    for k in (*MOVING_OPTIONS, "forearm_blend"):
         retarget[k] = getattr(args, k, getattr(defaults, k))
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos

@@ -176,7 +176,8 @@ def test_eval_defaults_are_the_service_retarget_settings(tmp_path):
     assert retarget["wrist_range"] == cfg.wrist_range and retarget["forearm_blend"] == cfg.forearm_blend
     for flag in ("wrist_range", "forearm_blend"):
         on = _settings(_args(["x.bvh", "--json", "o.json", f"--{flag.replace('_', '-')}"]))[3]
-        assert on[flag] is True
+        off = _settings(_args(["x.bvh", "--json", "o.json", f"--no-{flag.replace('_', '-')}"]))[3]
+        assert on[flag] is True and off[flag] is False
     # self-collision and the lock-up recovery: the solver's defaults unless --self-collision / --recovery on|off
     # say otherwise
     assert "self_collision" not in _settings(args)[1] and "recovery" not in _settings(args)[1]

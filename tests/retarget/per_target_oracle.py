@@ -75,7 +75,8 @@ class PerTargetRetargeter(Retargeter):
             if placed is not None:
                 elbow, h_sh, h_el = placed
                 c = self.arms[side].centre
-                A = arm_alignment(h_el - h_sh, np.asarray(bone.p, dtype=float) - h_el, elbow - c, p - elbow)
+                fore_H = np.asarray(bone.p, dtype=float) - h_el
+                A = arm_alignment(h_el - h_sh, fore_H, elbow - c, p - elbow, self.config.forearm_blend)
                 R = rot_map.with_alignment(quat_to_matrix(bone.q), A)
         if R is None:
             R = rot_map(quat_to_matrix(bone.q))
