@@ -193,12 +193,16 @@ class SolverConfig:
             the joint limits. On: with the MuJoCo sim on run_happy, dash_active, kick_normal and
             wave-left-hand masculine, the sim's arm self-collision steps go 466/23/1904/78 -> 0 (hqp and
             wqp), min clearance >= 1.6 cm; gesture errors unchanged. Cost, CPU time on a shared 2-core
-            box: about 0.25 ms p50 a tick for the distances and rows (as the mesh version it replaces),
-            but rows reach the QP on 3.5-60 % of ticks instead of 82-91 % (h12c notes). **Off by
-            default** (``mimic solve --self-collision``): shipped on, the full test suite on a quiet
-            2-core machine took 951 s instead of ~510 s and the live stack fell behind real time (the
-            sim held for want of commands: 339 states at a solver start-up, retarget and the solver
-            dropping frames and commands), so the 500 Hz tick budget does not hold it yet.
+            box: about 0.25 ms a tick for the distances and rows when measured (as the mesh version it
+            replaces), which since session 9 happens only when the links could have closed a 3 cm pad
+            (``collision.SelfCollisionAvoidance.rows``; every 11th tick on guide_normal): tick p50 0.43 ->
+            0.28 ms on bow_old (arms near the body, rows reach the QP on most ticks), 0.22 -> 0.16 ms on
+            guide_normal, against 0.10 off. **Off by default** (``mimic solve --self-collision``): shipped
+            on before that, the full test suite on a quiet 2-core machine took 951 s instead of ~510 s and
+            the live stack fell behind real time (the sim held for want of commands: 339 states at a solver
+            start-up, retarget and the solver dropping frames and commands); with the cheaper rows, ``make
+            demo`` beside a training job still published 15 % fewer commands (8397 against 9921), so the
+            500 Hz budget beside the rest of the stack on 2 cores is still not clear.
     """
 
     algo: str = "hqp-nullspace"
@@ -700,7 +704,8 @@ class SolverCore:
         qd, reason = self._advance_raw(sol, lb, ub, dt)
         status, reason = self._status(qd, sol, held, reason)
         self._level1_met = bool(sol.ok and sol.residuals and sol.residuals[0] <= self.config.infeasible_tol)
-        self._publish_state(qd, dt)
+        if self._publish_state(qd, dt):
+            reason = (reason + "; " if reason else "") + "safety clamp (smoother)"
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
     def _solve(self, levels: list, lb: np.ndarray, ub: np.ndarray, ineq: Inequalities | None) -> Solution:
@@ -852,17 +857,19 @@ class SolverCore:
         np.minimum(np.maximum(q_next, self.bounds.lower, out=q_next), self.bounds.upper, out=self.q_raw)
         self.qd_raw[:] = qd
 
-    def _publish_state(self, qd: np.ndarray | None, dt: float) -> None:
-        """The published q, qd: the smoothed trajectory, or the raw one without smoothing."""
+    def _publish_state(self, qd: np.ndarray | None, dt: float) -> bool:
+        """The published q, qd: the smoothed trajectory, or the raw one without smoothing. Returns True when the
+        smoother's last clamp acted (counted as a safety clamp)."""
         if self.smoother is None:
             self.q_out[:] = self.q_raw
             self.qd_out[:] = self.qd_raw
-            return
+            return False
         clamped = self.smoother.step(self.q_raw, self.qd_raw, dt)
         self.counts["smoothing_limited"] += self.smoother.limited > 0
         self.counts["safety_clamps"] += clamped > 0
         self.q_out[:] = self.smoother.p
         self.qd_out[:] = self.smoother.v
+        return clamped > 0
 
     def _shape_gains(self) -> None:
         """Wrist (level 1) gains that ask for no more than the wrists can brake from.

@@ -256,3 +256,32 @@ def test_without_avoidance_the_same_drive_penetrates(robot, avoidance):
     for k in range(600):
         cmd = core.step(_wrist_targets(robot, poses, inside, k, k * DT), None, k * DT)
     assert _mesh_clearance(avoidance, cmd.q) < 0.0
+
+
+def test_rows_between_measurements_follow_the_joints(robot, avoidance):
+    # Along a joint path that brings pairs within d_i in steps of one 500 Hz tick at 2 rad/s summed, the pairs are
+    # measured again only when the links could have closed the pad; in between, every pair a fresh measurement
+    # finds within d_i is among the rows (but on the edge of d_i), its followed distance within a millimetre.
+    rng = np.random.default_rng(11)
+    for q1 in robot.random_configurations(200, rng):
+        if len(avoidance.distances(q1)) >= 2:
+            break
+    q0 = robot.q_rest.copy()
+    step = 2.0 * DT  # [rad] of summed joint travel a tick
+    n = int(np.abs(q1 - q0).sum() / step) + 1
+    before = avoidance.measurements
+    fresh = SelfCollisionAvoidance(robot)
+    worst = 0.0
+    for s in np.linspace(0.0, 1.0, n):
+        q = q0 + s * (q1 - q0)
+        avoidance.rows(q)
+        followed = {(pd.body_a, pd.body_b): pd.distance for pd in avoidance.close}
+        for pd in fresh.distances(q):
+            key = (pd.body_a, pd.body_b)
+            if key in followed:
+                worst = max(worst, abs(followed[key] - pd.distance))
+            else:  # only a pair on the edge of d_i, within the followed distance's error
+                assert pd.distance > avoidance.d_i - 1e-3, (s, fresh.body_names(pd), pd.distance)
+    measured = avoidance.measurements - before
+    assert measured < n / 3, (measured, n)  # most ticks follow the last measurement
+    assert worst < 1e-3, worst
