@@ -201,8 +201,10 @@ class SolverConfig:
             on before that, the full test suite on a quiet 2-core machine took 951 s instead of ~510 s and
             the live stack fell behind real time (the sim held for want of commands: 339 states at a solver
             start-up, retarget and the solver dropping frames and commands); with the cheaper rows, ``make
-            demo`` beside a training job still published 15 % fewer commands (8397 against 9921), so the
-            500 Hz budget beside the rest of the stack on 2 cores is still not clear.
+            demo`` beside a training job still published 15 % fewer commands (8397 against 9921), and at
+            load ~2 (two runs each) 3 % fewer, latency p50 9.6-9.8 against 9.2-9.5 ms, the steady elbow error
+            0.25 against 0.13 cm (offline from rest the demo motions' errors are identical on and off: the
+            live difference is not explained yet), so it stays off (solver README).
     """
 
     algo: str = "hqp-nullspace"
