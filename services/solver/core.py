@@ -203,8 +203,9 @@ class SolverConfig:
             start-up, retarget and the solver dropping frames and commands); with the cheaper rows, ``make
             demo`` beside a training job still published 15 % fewer commands (8397 against 9921), and at
             load ~2 (two runs each) 3 % fewer, latency p50 9.6-9.8 against 9.2-9.5 ms, the steady elbow error
-            0.25 against 0.13 cm (offline from rest the demo motions' errors are identical on and off: the
-            live difference is not explained yet), so it stays off (solver README).
+            0.25 against 0.13 cm (reproduced offline only with measured joints fed back: the damper holds the
+            arm for ~0.1 s as it swings past the torso onto the ellipse, and the elbow then stays 0.7-1.0 cm
+            off for 1.5 s with no row present; solver README), so it stays off.
     """
 
     algo: str = "hqp-nullspace"
