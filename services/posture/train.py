@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from services.posture.augment import turn_arms, yaw_pitch_rotations
 from services.posture.features import (
     ACTION_DIM,
     ARM_STATE_DIM,
@@ -80,6 +81,12 @@ class TrainConfig:
         unit_action: the action loss on the raw labels, not on labels normalised per entry: for the
             swivel kind's (cos φ, sin φ), where the squared error is then the squared chord of the angle
             error, the same for every direction (per-entry scaling would weigh one axis of the circle more).
+        augment_deg: elbow kind only: every epoch, each sample also appears with its whole arm (hand pose and
+            elbow label) turned about the robot's shoulder centre by a fresh random yaw and pitch in
+            ±augment_deg [deg] (:mod:`.augment`); the encoder learns from both, the decoder (whose joint
+            inputs would not turn with the arm) from the originals only. 0: off.
+        encoder_layers: the encoder's hidden layers (each ``hidden`` units).
+        weight_decay: AdamW's decoupled weight decay on both networks (0: plain Adam).
     """
 
     hidden: int = 128
@@ -95,6 +102,9 @@ class TrainConfig:
     input_noise: float = 0.0
     gate_factor: float = 4.0
     unit_action: bool = False
+    augment_deg: float = 0.0
+    encoder_layers: int = 2
+    weight_decay: float = 0.0
 
 
 @dataclass
@@ -171,14 +181,19 @@ def _norm(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mu, np.where(sd < 1e-6, 1.0, sd)
 
 
-def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tuple[dict[str, np.ndarray], dict]:
+def fit(
+    data: Dataset, config: TrainConfig | None = None, progress=None, centres: list[np.ndarray] | None = None
+) -> tuple[dict[str, np.ndarray], dict]:
     """Train encoder and decoder of both arms; returns (exported weights, training report).
 
     Args:
         progress: optional callable(side, epoch, loss) for progress display.
+        centres: per side, the robot's shoulder centre (3,) [m], base frame: needed with ``augment_deg``.
     """
     torch = require_torch()
     cfg = config or TrainConfig()
+    if cfg.augment_deg > 0.0 and (centres is None or not cfg.hand_only):
+        raise ValueError("augment_deg needs the shoulder centres and a hand-only encoder (elbow kind)")
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     weights: dict[str, np.ndarray] = {}
@@ -202,26 +217,40 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
         if cfg.hand_only:
             T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
         gen = torch.Generator().manual_seed(cfg.seed + i)
-        enc = _net(torch, STATE_DIM, cfg.hidden, A.shape[1])
+        rng = np.random.default_rng([cfg.seed, i])
+        enc = _net(torch, STATE_DIM, cfg.hidden, A.shape[1], cfg.encoder_layers)
         dec = _net(torch, Din.shape[1], cfg.decoder_hidden or cfg.hidden, ARM_STATE_DIM, cfg.decoder_layers)
-        opt = torch.optim.Adam([*enc.parameters(), *dec.parameters()], lr=cfg.lr)
+        params = [*enc.parameters(), *dec.parameters()]
+        if cfg.weight_decay > 0.0:
+            opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        else:
+            opt = torch.optim.Adam(params, lr=cfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
         curve = []
         n = len(S)
         for epoch in range(cfg.epochs):
             perm = torch.randperm(n, generator=gen)
+            if cfg.augment_deg > 0.0:
+                S_aug, A_aug = _turned(S, A, centres[i], rng, cfg.augment_deg)
+                S_aug = torch.tensor((S_aug - ns[0]) / ns[1], dtype=torch.float32)
+                S_aug[:, HAND_INPUTS:] = 0.0
+                A_aug = torch.tensor((A_aug - na[0]) / na[1], dtype=torch.float32)
             tot_a = tot_z = 0.0
             for j in range(0, n, cfg.batch):
                 idx = perm[j : j + cfg.batch]
                 s_n = T["S"][idx]
+                a_lab = T["A"][idx]
+                if cfg.augment_deg > 0.0:  # the turned copies after the originals: the decoder reads the first rows
+                    s_n = torch.cat([s_n, S_aug[idx]])
+                    a_lab = torch.cat([a_lab, A_aug[idx]])
                 if cfg.input_noise > 0.0:
                     noise = torch.randn(s_n.shape, generator=gen) * cfg.input_noise
                     if cfg.hand_only:
                         noise[:, HAND_INPUTS:] = 0.0  # the masked joints stay at their mean
                     s_n = s_n + noise
                 a_n = enc(s_n)
-                loss_a = ((a_n - T["A"][idx]) ** 2).mean()  # eq. (7)
-                a = a_n * na_sd + na_mu  # the decoder sees the encoder's action in physical units
+                loss_a = ((a_n - a_lab) ** 2).mean()  # eq. (7)
+                a = a_n[: len(idx)] * na_sd + na_mu  # the decoder sees the encoder's action in physical units
                 d_in = (torch.cat([a, q_xd[idx]], dim=1) - nd_mu) / nd_sd
                 loss_z = ((dec(d_in) - T["Z"][idx]) ** 2).mean()
                 loss = loss_a + cfg.decoder_weight * loss_z
@@ -247,6 +276,15 @@ def fit(data: Dataset, config: TrainConfig | None = None, progress=None) -> tupl
             "curve": [[float(a), float(z)] for a, z in curve],
         }
     return weights, report
+
+
+def _turned(S: np.ndarray, A: np.ndarray, centre: np.ndarray, rng: np.random.Generator, max_deg: float):
+    """States (N, 14) and elbow labels (N, 3) with each arm turned about ``centre`` by a random yaw/pitch."""
+    q_rot, R_rot = yaw_pitch_rotations(rng, len(S), max_deg)
+    hand, elbow = turn_arms(S[:, :HAND_INPUTS], A, centre, q_rot, R_rot)
+    out = S.copy()
+    out[:, :HAND_INPUTS] = hand
+    return out, elbow
 
 
 def _export(torch, prefix: str, net, n_in, n_out) -> dict[str, np.ndarray]:
