@@ -14,13 +14,17 @@ from __future__ import annotations
 import numpy as np
 
 
-def yaw_pitch_rotations(rng: np.random.Generator, n: int, max_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """n rotations ``R_a = R_z(yaw) R_y(pitch)``, yaw and pitch uniform in ±max_deg [deg].
+def yaw_pitch_rotations(
+    rng: np.random.Generator, n: int, max_deg: float, max_pitch_deg: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """n rotations ``R_a = R_z(yaw) R_y(pitch)``, yaw uniform in ±max_deg, pitch in ±max_pitch_deg [deg]
+    (default: max_deg; 0: turns about the vertical only, which keep the arm's pose against gravity).
 
     Returns:
         (quaternions (n, 4) wxyz with w > 0, matrices (n, 3, 3)) of the same rotations.
     """
-    half = np.deg2rad(rng.uniform(-max_deg, max_deg, (2, n))) / 2.0
+    pitch = max_deg if max_pitch_deg is None else max_pitch_deg
+    half = np.deg2rad(rng.uniform(-1.0, 1.0, (2, n)) * np.array([[max_deg], [pitch]])) / 2.0
     cz, sz = np.cos(half[0]), np.sin(half[0])
     cy, sy = np.cos(half[1]), np.sin(half[1])
     # q_z ⊗ q_y with q_z = (cz, 0, 0, sz), q_y = (cy, 0, sy, 0)

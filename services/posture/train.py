@@ -85,6 +85,8 @@ class TrainConfig:
             elbow label) turned about the robot's shoulder centre by a fresh random yaw and pitch in
             ±augment_deg [deg] (:mod:`.augment`); the encoder learns from both, the decoder (whose joint
             inputs would not turn with the arm) from the originals only. 0: off.
+        augment_pitch_deg: the pitch bound [deg] of those turns (None: ``augment_deg``; 0: yaw only, turns
+            about the vertical, which keep the arm's pose against gravity).
         encoder_layers: the encoder's hidden layers (each ``hidden`` units).
         weight_decay: AdamW's decoupled weight decay on both networks (0: plain Adam).
     """
@@ -103,6 +105,7 @@ class TrainConfig:
     gate_factor: float = 4.0
     unit_action: bool = False
     augment_deg: float = 0.0
+    augment_pitch_deg: float | None = None
     encoder_layers: int = 2
     weight_decay: float = 0.0
 
@@ -231,7 +234,7 @@ def fit(
         for epoch in range(cfg.epochs):
             perm = torch.randperm(n, generator=gen)
             if cfg.augment_deg > 0.0:
-                S_aug, A_aug = _turned(S, A, centres[i], rng, cfg.augment_deg)
+                S_aug, A_aug = _turned(S, A, centres[i], rng, cfg.augment_deg, cfg.augment_pitch_deg)
                 S_aug = torch.tensor((S_aug - ns[0]) / ns[1], dtype=torch.float32)
                 S_aug[:, HAND_INPUTS:] = 0.0
                 A_aug = torch.tensor((A_aug - na[0]) / na[1], dtype=torch.float32)
@@ -278,9 +281,10 @@ def fit(
     return weights, report
 
 
-def _turned(S: np.ndarray, A: np.ndarray, centre: np.ndarray, rng: np.random.Generator, max_deg: float):
+def _turned(S: np.ndarray, A: np.ndarray, centre: np.ndarray, rng: np.random.Generator, max_deg: float,
+            max_pitch_deg: float | None):  # fmt: skip
     """States (N, 14) and elbow labels (N, 3) with each arm turned about ``centre`` by a random yaw/pitch."""
-    q_rot, R_rot = yaw_pitch_rotations(rng, len(S), max_deg)
+    q_rot, R_rot = yaw_pitch_rotations(rng, len(S), max_deg, max_pitch_deg)
     hand, elbow = turn_arms(S[:, :HAND_INPUTS], A, centre, q_rot, R_rot)
     out = S.copy()
     out[:, :HAND_INPUTS] = hand

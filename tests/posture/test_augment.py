@@ -19,6 +19,9 @@ def test_a_turned_arm_is_the_same_arm_turned_about_the_shoulder():
         pitch = np.degrees(np.arcsin(-R[2, 0]))
         assert abs(yaw) <= 15.0 + 1e-9 and abs(pitch) <= 15.0 + 1e-9 and abs(R[2, 1]) < 1e-12
     assert np.degrees(2 * np.arccos(q_rot[:, 0])).max() > 12.0  # the range is used, not a few degrees
+    _q, R_yaw = yaw_pitch_rotations(rng, 50, 15.0, max_pitch_deg=0.0)  # yaw only: the vertical stays put
+    np.testing.assert_allclose(R_yaw[:, :, 2], np.tile([0.0, 0.0, 1.0], (50, 1)), atol=1e-15)
+    assert np.abs(R_yaw[:, 0, 1]).max() > np.sin(np.radians(12.0))
     centre = np.array([0.0, 0.15, 0.25])
     Q = np.array([matrix_to_quat(quat_to_matrix(rng.normal(size=4))) for _ in range(n)])
     p = centre + rng.normal(0.0, 0.3, (n, 3))
