@@ -50,6 +50,23 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
     np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-6)
 
 
+def test_deeper_encoder_runs_on_the_real_time_path_and_weight_decay_shrinks_the_weights(demo):
+    robot, _arms, data = demo
+    w3, rep = fit(data, TrainConfig(hidden=16, encoder_layers=3, epochs=30, batch=64, seed=0))
+    assert [w3[f"left.enc.W{k}"].shape for k in range(4)] == [(14, 16), (16, 16), (16, 16), (16, 3)]
+    assert "left.enc.W4" not in w3 and rep["config"]["encoder_layers"] == 3
+    pol = PosturePolicy(w3, policy_meta(robot, 1e3))
+    for k in (0, 7, 20):
+        S = np.stack([data.S[0][k], data.S[1][k]])
+        np.testing.assert_allclose(pol.act(S).action, pol.act_reference(S).action, atol=1e-5)
+    plain, _ = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0))
+    decayed, rep = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0, weight_decay=5.0))
+    assert rep["config"]["weight_decay"] == 5.0
+    # the hidden layers (no normalisation folded in) are pulled toward zero
+    norm = {n: np.linalg.norm(w["left.enc.W1"]) for n, w in (("plain", plain), ("decayed", decayed))}
+    assert norm["decayed"] < 0.9 * norm["plain"], norm
+
+
 def test_gate_threshold_is_the_factor_times_the_p99_of_the_policys_own_gaps_on_the_training_states(demo):
     from services.posture.cli import GATE_MIN, gate_thresholds
 
