@@ -6,12 +6,16 @@ about the robot's shoulder centre ``c`` gives another arm of the same proportion
 ``e' = c + R_a (e - c)`` (upper-arm and forearm lengths kept, so ``e'`` is still an elbow that reaches
 ``p'``), and the hand's orientation turned with it, ``R(Q') = R_a R(Q)``. Rotations are small yaw (about
 the base z axis) and pitch (about its y axis) angles, drawn uniformly: an operator's gesture done a little
-more to the side, higher or lower. Training only: the real-time path never sees this module.
+more to the side, higher or lower. A reach change (:func:`scale_reach`) moves the wrist along the
+shoulder-wrist axis and puts the elbow back on the circle of elbows that reach it, on the same side.
+Training only: the real-time path never sees this module.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from services.retarget.elbow import elbow_circle
 
 
 def yaw_pitch_rotations(
@@ -71,3 +75,25 @@ def turn_arms(
     p = centre + np.einsum("nij,nj->ni", R_rot, hand[:, 4:7] - centre)
     e = centre + np.einsum("nij,nj->ni", R_rot, elbow - centre)
     return np.concatenate([Q, p], axis=1), e
+
+
+def scale_reach(
+    hand: np.ndarray, elbow: np.ndarray, centre: np.ndarray, upper: float, fore: float, scale: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hand poses (n, 7) and elbows (n, 3) [m] with the shoulder-wrist distance times ``scale`` (n,).
+
+    The wrist moves along the shoulder-wrist axis ``u``; the elbow goes onto the circle of elbows that reach
+    the new wrist (``retarget.elbow.elbow_circle``: upper-arm length ``upper`` from ``centre``, forearm
+    ``fore`` from the wrist, distances clamped into the lengths' range) in the direction its offset from the
+    axis had (the same swivel angle). The hand's orientation is kept.
+    """
+    v = hand[:, 4:7] - centre
+    d = np.linalg.norm(v, axis=1)
+    u = v / np.maximum(d, 1e-9)[:, None]
+    off = elbow - centre
+    perp = off - np.einsum("ni,ni->n", off, u)[:, None] * u
+    perp /= np.maximum(np.linalg.norm(perp, axis=1), 1e-9)[:, None]
+    x, r = np.array([elbow_circle(upper, fore, float(di)) for di in d * scale]).T
+    out = hand.copy()
+    out[:, 4:7] = centre + (d * scale)[:, None] * u
+    return out, centre + x[:, None] * u + r[:, None] * perp

@@ -53,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    "by a random yaw and pitch within this many degrees, fresh every epoch (0: off)")  # fmt: skip
     t.add_argument("--augment-pitch-deg", type=float, default=None,
                    help="pitch bound of those turns [deg] (default: --augment-deg; 0: yaw only)")  # fmt: skip
+    t.add_argument("--augment-reach", type=float, default=0.0,
+                   help="elbow kind: the augmented copies' shoulder-wrist distance also scaled by 1 +- this "
+                   "(the elbow kept on the circle that reaches the wrist; 0: off)")  # fmt: skip
     t.add_argument("--weight-decay", type=float, default=0.0, help="AdamW weight decay (0: plain Adam)")
     t.add_argument("--gate-factor", type=float, default=TrainConfig.gate_factor,
                    help="gate threshold per arm = this x the 99th percentile of the training gaps |x_dv - p| "
@@ -145,10 +148,10 @@ def _train(args: argparse.Namespace) -> int:
                        epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
                        input_noise=args.input_noise, gate_factor=args.gate_factor,
                        unit_action=args.action_kind == "swivel", augment_deg=args.augment_deg,
-                       augment_pitch_deg=args.augment_pitch_deg,
+                       augment_pitch_deg=args.augment_pitch_deg, augment_reach=args.augment_reach,
                        encoder_layers=args.encoder_layers, weight_decay=args.weight_decay)  # fmt: skip
-    if args.augment_deg > 0.0 and args.action_kind != "elbow":
-        raise SystemExit("--augment-deg turns elbow labels: it needs --action-kind elbow")
+    if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
+        raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain

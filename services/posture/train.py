@@ -17,12 +17,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.posture.augment import turn_arms, yaw_pitch_rotations
+from services.posture.augment import scale_reach, turn_arms, yaw_pitch_rotations
 from services.posture.features import (
     ACTION_DIM,
     ARM_STATE_DIM,
     HAND_INPUTS,
     STATE_DIM,
+    ArmFrame,
     mirror_action,
     mirror_arm_state,
     mirror_state,
@@ -87,6 +88,9 @@ class TrainConfig:
             inputs would not turn with the arm) from the originals only. 0: off.
         augment_pitch_deg: the pitch bound [deg] of those turns (None: ``augment_deg``; 0: yaw only, turns
             about the vertical, which keep the arm's pose against gravity).
+        augment_reach: with it (or alone), the turned copies' shoulder-wrist distance is also scaled by a
+            factor uniform in 1 ± augment_reach, the elbow kept on the circle that reaches the wrist
+            (:func:`.augment.scale_reach`). 0: off.
         encoder_layers: the encoder's hidden layers (each ``hidden`` units).
         weight_decay: AdamW's decoupled weight decay on both networks (0: plain Adam).
     """
@@ -106,6 +110,7 @@ class TrainConfig:
     unit_action: bool = False
     augment_deg: float = 0.0
     augment_pitch_deg: float | None = None
+    augment_reach: float = 0.0
     encoder_layers: int = 2
     weight_decay: float = 0.0
 
@@ -185,18 +190,19 @@ def _norm(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit(
-    data: Dataset, config: TrainConfig | None = None, progress=None, centres: list[np.ndarray] | None = None
+    data: Dataset, config: TrainConfig | None = None, progress=None, frames: list[ArmFrame] | None = None
 ) -> tuple[dict[str, np.ndarray], dict]:
     """Train encoder and decoder of both arms; returns (exported weights, training report).
 
     Args:
         progress: optional callable(side, epoch, loss) for progress display.
-        centres: per side, the robot's shoulder centre (3,) [m], base frame: needed with ``augment_deg``.
+        frames: per side, the robot arm's shoulder centre and lengths: needed to augment.
     """
     torch = require_torch()
     cfg = config or TrainConfig()
-    if cfg.augment_deg > 0.0 and (centres is None or not cfg.hand_only):
-        raise ValueError("augment_deg needs the shoulder centres and a hand-only encoder (elbow kind)")
+    augment = cfg.augment_deg > 0.0 or cfg.augment_reach > 0.0
+    if augment and (frames is None or not cfg.hand_only):
+        raise ValueError("augmenting needs the arms' shoulder centres and a hand-only encoder (elbow kind)")
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     weights: dict[str, np.ndarray] = {}
@@ -233,8 +239,8 @@ def fit(
         n = len(S)
         for epoch in range(cfg.epochs):
             perm = torch.randperm(n, generator=gen)
-            if cfg.augment_deg > 0.0:
-                S_aug, A_aug = _turned(S, A, centres[i], rng, cfg.augment_deg, cfg.augment_pitch_deg)
+            if augment:
+                S_aug, A_aug = _turned(S, A, frames[i], rng, cfg)
                 S_aug = torch.tensor((S_aug - ns[0]) / ns[1], dtype=torch.float32)
                 S_aug[:, HAND_INPUTS:] = 0.0
                 A_aug = torch.tensor((A_aug - na[0]) / na[1], dtype=torch.float32)
@@ -243,7 +249,7 @@ def fit(
                 idx = perm[j : j + cfg.batch]
                 s_n = T["S"][idx]
                 a_lab = T["A"][idx]
-                if cfg.augment_deg > 0.0:  # the turned copies after the originals: the decoder reads the first rows
+                if augment:  # the turned copies after the originals: the decoder reads the first rows
                     s_n = torch.cat([s_n, S_aug[idx]])
                     a_lab = torch.cat([a_lab, A_aug[idx]])
                 if cfg.input_noise > 0.0:
@@ -281,11 +287,16 @@ def fit(
     return weights, report
 
 
-def _turned(S: np.ndarray, A: np.ndarray, centre: np.ndarray, rng: np.random.Generator, max_deg: float,
-            max_pitch_deg: float | None):  # fmt: skip
-    """States (N, 14) and elbow labels (N, 3) with each arm turned about ``centre`` by a random yaw/pitch."""
-    q_rot, R_rot = yaw_pitch_rotations(rng, len(S), max_deg, max_pitch_deg)
-    hand, elbow = turn_arms(S[:, :HAND_INPUTS], A, centre, q_rot, R_rot)
+def _turned(S: np.ndarray, A: np.ndarray, arm: ArmFrame, rng: np.random.Generator, cfg: TrainConfig):
+    """States (N, 14) and elbow labels (N, 3) with each arm's reach scaled and the arm turned about its
+    shoulder by a random yaw/pitch (``cfg.augment_*``)."""
+    hand, elbow = S[:, :HAND_INPUTS], A
+    if cfg.augment_reach > 0.0:
+        scale = 1.0 + rng.uniform(-cfg.augment_reach, cfg.augment_reach, len(S))
+        hand, elbow = scale_reach(hand, elbow, arm.centre, arm.upper, arm.fore, scale)
+    if cfg.augment_deg > 0.0:
+        q_rot, R_rot = yaw_pitch_rotations(rng, len(S), cfg.augment_deg, cfg.augment_pitch_deg)
+        hand, elbow = turn_arms(hand, elbow, arm.centre, q_rot, R_rot)
     out = S.copy()
     out[:, :HAND_INPUTS] = hand
     return out, elbow

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.posture.augment import turn_arms, yaw_pitch_rotations
+from services.posture.augment import scale_reach, turn_arms, yaw_pitch_rotations
 from shared.rotations import matrix_to_quat, quat_to_matrix
 
 
@@ -36,6 +36,32 @@ def test_a_turned_arm_is_the_same_arm_turned_about_the_shoulder():
     assert (np.einsum("ni,ni->n", hand[:, :4], Q) > 0.0).all()  # the sign convention of the inputs is kept
 
 
+def test_a_longer_or_shorter_reach_keeps_the_elbow_on_the_arm_and_on_its_side():
+    rng = np.random.default_rng(4)
+    n, centre, upper, fore = 100, np.array([0.0, 0.15, 0.25]), 0.26, 0.24
+    # elbows on the circle that reaches each wrist: random directions, distances well inside the reach
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    d = rng.uniform(0.2, 0.42, n)
+    side = rng.normal(size=(n, 3))
+    side -= np.einsum("ni,ni->n", side, u)[:, None] * u
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    x = (upper**2 - fore**2 + d**2) / (2 * d)
+    e = centre + x[:, None] * u + np.sqrt(upper**2 - x**2)[:, None] * side
+    hand = np.c_[rng.normal(size=(n, 4)), centre + d[:, None] * u]
+    same, e1 = scale_reach(hand, e, centre, upper, fore, np.ones(n))
+    np.testing.assert_allclose(e1, e, atol=1e-12)  # scale 1: nothing moves
+    np.testing.assert_allclose(same, hand, atol=1e-12)
+    scale = rng.uniform(0.9, 1.1, n)
+    out, e2 = scale_reach(hand, e, centre, upper, fore, scale)
+    np.testing.assert_array_equal(out[:, :4], hand[:, :4])  # the hand's orientation is kept
+    np.testing.assert_allclose(out[:, 4:] - centre, (d * scale)[:, None] * u, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(e2 - centre, axis=1), upper, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(e2 - out[:, 4:], axis=1), fore, atol=1e-12)
+    off = e2 - centre - np.einsum("ni,ni->n", e2 - centre, u)[:, None] * u
+    np.testing.assert_allclose(off / np.linalg.norm(off, axis=1, keepdims=True), side, atol=1e-9)  # same swivel
+
+
 torch = pytest.importorskip("torch", reason="training needs the optional extra: pip install 'mimic[train]'")
 
 
@@ -54,8 +80,8 @@ def test_training_on_turned_arms_predicts_turned_gestures(bvh_clips):
     base = TrainConfig(hidden=16, epochs=60, batch=64, seed=0, hand_only=True)
     with pytest.raises(ValueError, match="shoulder centres"):
         fit(data, TrainConfig(**{**base.__dict__, "augment_deg": 20.0}))
-    plain, _ = fit(data, base, centres=centres)
-    turned, _ = fit(data, TrainConfig(**{**base.__dict__, "augment_deg": 25.0}), centres=centres)
+    plain, _ = fit(data, base, frames=arms.frames)
+    turned, _ = fit(data, TrainConfig(**{**base.__dict__, "augment_deg": 25.0}), frames=arms.frames)
     # the decoder trains on the original samples alone in both fits, the encoders differ
     assert not np.array_equal(plain["left.enc.W0"], turned["left.enc.W0"])
     # the same gestures done 20° further out (yaw) and 15° higher (pitch): what the plain fit never saw
