@@ -130,6 +130,8 @@ def _train(args: argparse.Namespace) -> int:
     from services.posture.train import TrainConfig, require_torch
     from shared.robot.pinocchio_model import build_robot_model
 
+    if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
+        raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
     torch = require_torch()
     t_start = time.perf_counter()
     np.random.seed(args.seed)
@@ -150,8 +152,6 @@ def _train(args: argparse.Namespace) -> int:
                        unit_action=args.action_kind == "swivel", augment_deg=args.augment_deg,
                        augment_pitch_deg=args.augment_pitch_deg, augment_reach=args.augment_reach,
                        encoder_layers=args.encoder_layers, weight_decay=args.weight_decay)  # fmt: skip
-    if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
-        raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain

@@ -199,3 +199,24 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     assert [r["round"] for r in report["relabel"]] == [0, 1]
     assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time
     assert png.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, tmp_path):
+    out, rep = tmp_path / "p.npz", tmp_path / "r.json"
+    cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
+           "--json", str(rep), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1", "--holdout-every", "2",
+           "--chunk-s", "1.5", "--augment-deg", "10", "--augment-pitch-deg", "0", "--augment-reach", "0.05",
+           "--encoder-layers", "3", "--weight-decay", "0.01"]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    meta = PosturePolicy.load(out).meta
+    assert meta["network"]["encoder"] == [14, 8, 8, 8, 3]
+    train = meta["train"]
+    assert (train["augment_deg"], train["augment_pitch_deg"], train["augment_reach"]) == (10.0, 0.0, 0.05)
+    assert (train["encoder_layers"], train["weight_decay"]) == (3, 0.01)
+    # the turns move elbow labels: another action kind is refused before any work
+    bad = subprocess.run([*cmd[:-10], "--augment-deg", "10", "--action-kind", "posture"], capture_output=True,
+                         text=True, timeout=600)  # fmt: skip
+    assert bad.returncode != 0 and "--action-kind elbow" in bad.stderr
