@@ -41,12 +41,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
     t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
-    t.add_argument("--hidden", type=int, default=128, help="encoder hidden units per layer (2 hidden layers)")
+    t.add_argument("--hidden", type=int, default=128, help="encoder hidden units per layer")
+    t.add_argument("--encoder-layers", type=int, default=TrainConfig.encoder_layers, help="encoder hidden layers")
     t.add_argument("--decoder-hidden", type=int, default=32, help="decoder hidden units per layer (it feeds the gate)")
     t.add_argument("--decoder-layers", type=int, default=1, help="decoder hidden layers")
     t.add_argument("--epochs", type=int, default=80, help="training epochs per fit (chosen on validation clips)")
     t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
+    t.add_argument("--augment-deg", type=float, default=0.0,
+                   help="elbow kind: also train the encoder on each sample's whole arm turned about the shoulder "
+                   "by a random yaw and pitch within this many degrees, fresh every epoch (0: off)")  # fmt: skip
+    t.add_argument("--augment-pitch-deg", type=float, default=None,
+                   help="pitch bound of those turns [deg] (default: --augment-deg; 0: yaw only)")  # fmt: skip
+    t.add_argument("--augment-reach", type=float, default=0.0,
+                   help="elbow kind: the augmented copies' shoulder-wrist distance also scaled by 1 +- this "
+                   "(the elbow kept on the circle that reaches the wrist; 0: off)")  # fmt: skip
+    t.add_argument("--weight-decay", type=float, default=0.0, help="AdamW weight decay (0: plain Adam)")
     t.add_argument("--gate-factor", type=float, default=TrainConfig.gate_factor,
                    help="gate threshold per arm = this x the 99th percentile of the training gaps |x_dv - p| "
                    "(chosen on validation clips, see TrainConfig)")  # fmt: skip
@@ -120,6 +130,8 @@ def _train(args: argparse.Namespace) -> int:
     from services.posture.train import TrainConfig, require_torch
     from shared.robot.pinocchio_model import build_robot_model
 
+    if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
+        raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
     torch = require_torch()
     t_start = time.perf_counter()
     np.random.seed(args.seed)
@@ -137,7 +149,9 @@ def _train(args: argparse.Namespace) -> int:
     tcfg = TrainConfig(hidden=args.hidden, decoder_hidden=args.decoder_hidden, decoder_layers=args.decoder_layers,
                        epochs=args.epochs, seed=args.seed, threads=args.threads, hand_only=posture,
                        input_noise=args.input_noise, gate_factor=args.gate_factor,
-                       unit_action=args.action_kind == "swivel")  # fmt: skip
+                       unit_action=args.action_kind == "swivel", augment_deg=args.augment_deg,
+                       augment_pitch_deg=args.augment_pitch_deg, augment_reach=args.augment_reach,
+                       encoder_layers=args.encoder_layers, weight_decay=args.weight_decay)  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain
@@ -158,7 +172,7 @@ def _train(args: argparse.Namespace) -> int:
         "encoder_inputs": list(STATE_LAYOUT[:HAND_INPUTS] if posture else STATE_LAYOUT),
         "mirror_signs": [float(x) for x in arms.mirror] if args.mirror else None,
         "network": {
-            "encoder": [14, tcfg.hidden, tcfg.hidden, action_dim(args.action_kind)],
+            "encoder": [14, *[tcfg.hidden] * tcfg.encoder_layers, action_dim(args.action_kind)],
             "decoder": [14 + action_dim(args.action_kind), *[tcfg.decoder_hidden] * tcfg.decoder_layers, 6],
             "activation": "tanh (input and hidden layers), linear output",
         },

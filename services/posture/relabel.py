@@ -122,7 +122,7 @@ def relabel_experiment(
     def train_policy(data: Dataset, tag: str):
         if cfg.mirror:
             data = data.with_mirror(arms.mirror, rcfg.action_kind)
-        w, rep = fit(data, tcfg, fit_progress)
+        w, rep = fit(data, tcfg, fit_progress, frames=arms.frames)
         pol = PosturePolicy(w, make_meta(w, data))
         say(f"{tag}: trained on {len(data)} samples")
         return w, rep, pol

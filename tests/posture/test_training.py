@@ -50,6 +50,23 @@ def test_bc_fits_expert_labels_and_export_matches_torch(demo):
     np.testing.assert_allclose(out.qd0[0], np.clip(mlp(_layers(w, "left.enc"), data.S[0][5]), -2, 2), atol=1e-6)
 
 
+def test_deeper_encoder_runs_on_the_real_time_path_and_weight_decay_shrinks_the_weights(demo):
+    robot, _arms, data = demo
+    w3, rep = fit(data, TrainConfig(hidden=16, encoder_layers=3, epochs=30, batch=64, seed=0))
+    assert [w3[f"left.enc.W{k}"].shape for k in range(4)] == [(14, 16), (16, 16), (16, 16), (16, 3)]
+    assert "left.enc.W4" not in w3 and rep["config"]["encoder_layers"] == 3
+    pol = PosturePolicy(w3, policy_meta(robot, 1e3))
+    for k in (0, 7, 20):
+        S = np.stack([data.S[0][k], data.S[1][k]])
+        np.testing.assert_allclose(pol.act(S).action, pol.act_reference(S).action, atol=1e-5)
+    plain, _ = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0))
+    decayed, rep = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0, weight_decay=5.0))
+    assert rep["config"]["weight_decay"] == 5.0
+    # the hidden layers (no normalisation folded in) are pulled toward zero
+    norm = {n: np.linalg.norm(w["left.enc.W1"]) for n, w in (("plain", plain), ("decayed", decayed))}
+    assert norm["decayed"] < 0.9 * norm["plain"], norm
+
+
 def test_gate_threshold_is_the_factor_times_the_p99_of_the_policys_own_gaps_on_the_training_states(demo):
     from services.posture.cli import GATE_MIN, gate_thresholds
 
@@ -182,3 +199,24 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     assert [r["round"] for r in report["relabel"]] == [0, 1]
     assert report["bc"][-1]["demo_s"] == pytest.approx(report["relabel"][-1]["demo_s"])  # equal demonstration time
     assert png.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, tmp_path):
+    out, rep = tmp_path / "p.npz", tmp_path / "r.json"
+    cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
+           "--json", str(rep), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1", "--holdout-every", "2",
+           "--chunk-s", "1.5", "--augment-deg", "10", "--augment-pitch-deg", "0", "--augment-reach", "0.05",
+           "--encoder-layers", "3", "--weight-decay", "0.01"]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    meta = PosturePolicy.load(out).meta
+    assert meta["network"]["encoder"] == [14, 8, 8, 8, 3]
+    train = meta["train"]
+    assert (train["augment_deg"], train["augment_pitch_deg"], train["augment_reach"]) == (10.0, 0.0, 0.05)
+    assert (train["encoder_layers"], train["weight_decay"]) == (3, 0.01)
+    # the turns move elbow labels: another action kind is refused before any work
+    bad = subprocess.run([*cmd[:-10], "--augment-deg", "10", "--action-kind", "posture"], capture_output=True,
+                         text=True, timeout=600)  # fmt: skip
+    assert bad.returncode != 0 and "--action-kind elbow" in bad.stderr
