@@ -433,6 +433,10 @@ class HumanFrame(Message):
         root: pelvis pose in the world frame of the capture.
         bones: canonical bone name -> :class:`Bone` in the pelvis frame
             (``T_h^w = (T_w^h)^-1 T_w^e``, seed 000 section 1.2).
+        oriented: False when the bones' orientations are placeholders (a marker-only source such as
+            C3D gives positions only; its quaternions are identity): the retargeter then publishes the
+            wrists without an orientation to track (``use_rotation=False``). Wire key ``ori``, optional
+            (absent: True).
     """
 
     TYPE: ClassVar[str] = "HumanFrame"
@@ -440,6 +444,7 @@ class HumanFrame(Message):
     source: str
     root: Pose
     bones: dict[str, Bone]
+    oriented: bool = True
 
     def body(self) -> dict:
         names = list(self.bones)
@@ -451,6 +456,7 @@ class HumanFrame(Message):
             "p": [_fl(self.bones[n].p) for n in names],
             "q": [_fl(self.bones[n].q) for n in names],
             "valid": [bool(self.bones[n].valid) for n in names],
+            "ori": bool(self.oriented),
         }
 
     @classmethod
@@ -468,11 +474,15 @@ class HumanFrame(Message):
         P = _matrix(ps, "p", len(names), 3, names)
         Q = _quats(qs, "q", len(names), names)
         bones = {n: Bone(P[i], Q[i], valid[i]) for i, n in enumerate(names)}
+        oriented = d.get("ori", True)
+        if type(oriented) is not bool:
+            raise MessageError("type", f"ori: expected a bool, got {type(oriented).__name__}")
         return cls(
             Header.from_wire(_req(d, "hdr", "HumanFrame")),
             _str(_req(d, "src", "HumanFrame"), "src"),
             Pose.from_wire(_req(d, "root", "HumanFrame"), "root"),
             bones,
+            oriented,
         )
 
 

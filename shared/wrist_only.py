@@ -15,7 +15,7 @@ HAND_BONES: tuple[str, ...] = ("left_wrist", "right_wrist", "left_hand", "right_
 def wrists_only(frame: HumanFrame) -> HumanFrame:
     """The same frame with every bone but the hands removed (header, source and root kept)."""
     bones = {n: b for n, b in frame.bones.items() if n in HAND_BONES}
-    return HumanFrame(frame.hdr, frame.source, frame.root, bones)
+    return HumanFrame(frame.hdr, frame.source, frame.root, bones, frame.oriented)
 
 
 def is_wrist_only(frame: HumanFrame) -> bool:

@@ -77,7 +77,7 @@ def operator_errors(trace: Trace, plain: list) -> dict:
             pos["wrist" if n in WRISTS else "elbow"].append(
                 100.0 * float(np.linalg.norm(trace.kin_p[n][tick - 1] - tg.p))
             )
-            if n in WRISTS and n in trace.kin_R:
+            if n in WRISTS and n in trace.kin_R and tg.use_rotation:
                 rot.append(np.degrees(np.linalg.norm(pin.log3(quat_to_matrix(tg.q).T @ trace.kin_R[n][tick - 1]))))
     return {
         "wrist_err_cm_vs_operator": _stats(np.array(pos["wrist"])),
@@ -150,6 +150,12 @@ def rotation_errors(ref: dict, got: dict, ok: dict, mask: np.ndarray | None = No
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def rotation_ok(trace: Trace) -> dict[str, np.ndarray]:
+    """Wrist -> (K,) ticks whose reference is valid and carries an orientation (none for a source without
+    measured orientations: its wrists have no rotation error to score)."""
+    return {n: ok & trace.ref_rot[n] if n in trace.ref_rot else ok for n, ok in trace.ref_ok.items()}
+
+
 def frame_errors(trace: Trace, names) -> np.ndarray:
     """Errors [m] of the robot at each frame's own instant against that frame's target.
 
@@ -216,7 +222,7 @@ def trace_metrics(
         "elbow_err_cm": _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, ELBOWS)),
         "wrist_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, WRISTS)),
         "elbow_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, ELBOWS)),
-        "wrist_rot_err_deg": _stats(rotation_errors(trace.ref_R, trace.kin_R, trace.ref_ok)),
+        "wrist_rot_err_deg": _stats(rotation_errors(trace.ref_R, trace.kin_R, rotation_ok(trace))),
         "wrist_frame_err_cm": _stats(cm * frame_errors(trace, WRISTS)),
         "elbow_frame_err_cm": _stats(cm * frame_errors(trace, ELBOWS)),
         "solve_ms": {

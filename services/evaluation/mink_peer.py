@@ -87,6 +87,8 @@ class MinkPeer:
         self.T_world_base = mink.SE3.from_rotation_and_translation(
             mink.SO3.from_matrix(base.xmat.reshape(3, 3).copy()), base.xpos.copy()
         )
+        #: the wrists' orientation cost when their target carries a rotation (``use_rotation``), as our solvers
+        self.orientation_cost = cfg.wrist_orientation_cost
         self.tasks = {
             name: mink.FrameTask(
                 prof.frames[name],
@@ -129,6 +131,8 @@ class MinkPeer:
                     continue  # no target yet (a clip whose marker set lacks it): mink would raise
                 T = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(s.R), s.p)
                 task.set_target(self.T_world_base @ T)
+                if name.endswith("wrist"):
+                    task.set_orientation_cost(self.orientation_cost if s.use_rotation else 0.0)
                 tasks.append(task)
             qd_all = mink.solve_ik(conf, tasks, self.dt, self.solver, limits=self.limits)
             if self.bounds is not None:

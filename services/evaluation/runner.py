@@ -53,6 +53,8 @@ class Trace:
         ref_p: target -> (K, 3) reference [m]; ref_R: wrist -> (K, 3, 3).
         kin_p / sim_p: target -> (K, 3) achieved [m]; kin_R / sim_R: wrist -> (K, 3, 3).
         ref_ok: target -> (K,) reference valid (not held).
+        ref_rot: wrist -> (K,) the reference carries an orientation to track (``use_rotation``; False for a
+            source without measured orientations): the rotation error is scored on these ticks only.
         q, qd: (K, n) commanded joints [rad], [rad/s]. solve_ms: (K,). status: (K,) str.
         res1: (K,) level-1 residual.
         collide: (K,) bool, an arm in penetration (sim contacts; kinematic clearance < 0 without sim,
@@ -84,6 +86,7 @@ class Trace:
     frame_seq: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     frame_p: dict[str, np.ndarray] = field(default_factory=dict)
     frame_ok: dict[str, np.ndarray] = field(default_factory=dict)
+    ref_rot: dict[str, np.ndarray] = field(default_factory=dict)
     dt: float = 0.002
     counts: dict[str, int] = field(default_factory=dict)
 
@@ -210,6 +213,7 @@ class _Recorder:
         self.rec: dict[str, list] = {k: [] for k in ("t", "seq", "q", "qd", "ms", "status", "res1", "collide", "clear")}
         self.ref_p = {n: [] for n in TARGET_NAMES}
         self.ref_R = {n: [] for n in WRISTS}
+        self.ref_rot = {n: [] for n in WRISTS}
         self.ref_ok = {n: [] for n in TARGET_NAMES}
         self.kin_p = {n: [] for n in TARGET_NAMES}
         self.kin_R = {n: [] for n in WRISTS}
@@ -242,6 +246,7 @@ class _Recorder:
             self.kin_p[n].append(poses[n][0])
             if n in self.ref_R:
                 self.ref_R[n].append(s.R if s is not None else np.eye(3))
+                self.ref_rot[n].append(s is not None and s.use_rotation)
                 self.kin_R[n].append(poses[n][1])
         if self.simcore is not None:
             for n, pose in self.simcore.frame_poses().items():
@@ -279,6 +284,7 @@ class _Recorder:
             ref_p=arr(self.ref_p),
             ref_R=arr(self.ref_R),
             ref_ok=arr(self.ref_ok),
+            ref_rot=arr(self.ref_rot),
             kin_p=arr(self.kin_p),
             kin_R=arr(self.kin_R),
             q=rec["q"],

@@ -117,7 +117,8 @@ class Clip:
         for b, held in self._held.items():
             bones[b] = Bone(held[i].copy(), self.quats[b][i].copy(), bool(self.valid[b][i]))
         hdr = Header(seq, float(self.times[i]), time.time_ns() if t0_ns is None else t0_ns)
-        return HumanFrame(hdr, self.source, Pose(self._root_p[i].copy(), self._root_q[i].copy()), bones)
+        root = Pose(self._root_p[i].copy(), self._root_q[i].copy())
+        return HumanFrame(hdr, self.source, root, bones, self.has_orientation)
 
     def slice(self, start: float | None = None, end: float | None = None) -> Clip:
         """Frames with ``start <= t <= end`` [s]; times restart at 0."""

@@ -99,7 +99,14 @@ def decode_lenient(payload: bytes) -> tuple[HumanFrame, list[Issue]]:
             continue
         bones[n] = Bone(pa, qa, ok)
     src = d.get("src", "")
-    return HumanFrame(Header(seq, float(stamp), t0), src if isinstance(src, str) else "", Pose(rp, rq), bones), issues
+    oriented = d.get("ori", True)
+    if not isinstance(oriented, bool):
+        issues.append(Issue("malformed_ori", "repaired", f"ori must be a bool, got {oriented!r}: taken as true"))
+        oriented = True
+    frame = HumanFrame(
+        Header(seq, float(stamp), t0), src if isinstance(src, str) else "", Pose(rp, rq), bones, oriented
+    )
+    return frame, issues
 
 
 @dataclass
@@ -219,4 +226,4 @@ class FrameSanitizer:
             out.append(Issue("empty", "dropped", f"seq {seq}: no valid bone"))
             return None
         self._guard.accept(f.hdr, f.source)
-        return HumanFrame(f.hdr, f.source, Pose(np.asarray(f.root.p, float), rq), bones)
+        return HumanFrame(f.hdr, f.source, Pose(np.asarray(f.root.p, float), rq), bones, f.oriented)

@@ -666,7 +666,11 @@ class Retargeter(FrameIntake):
         self._held_p = P
         self._held_R = R
         q = matrices_to_quats(R)
+        # A source without measured orientations (markers only: identity placeholders) gives no hand orientation
+        # to copy: mapped as real, the hand would stay fixed in the pelvis frame while the forearm moves and the
+        # solver would twist the wrist to its stops chasing it (h12r: the Vicon clip, 356 of 521 frames past
+        # the wrist's ranges). Its targets carry no rotation; the solver then tracks positions only.
+        use = self._use_rotation if frame.oriented else [False] * len(TARGET_NAMES)
         return {
-            t: Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=self._use_rotation[i])
-            for i, t in enumerate(TARGET_NAMES)
+            t: Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=use[i]) for i, t in enumerate(TARGET_NAMES)
         }

@@ -12,6 +12,7 @@ from services.evaluation.metrics import (
     position_errors,
     reachable_mask,
     rotation_errors,
+    rotation_ok,
     summarise,
     trace_metrics,
 )
@@ -91,6 +92,17 @@ def test_invalid_references_and_mask_are_left_out(robot):
     e = position_errors(tr.ref_p, tr.kin_p, tr.ref_ok, ("left_wrist",), mask)
     assert len(e) == K - 100
     assert len(rotation_errors(tr.ref_R, tr.kin_R, tr.ref_ok, mask)) == 2 * (K - 100)
+
+
+def test_wrists_without_an_orientation_to_track_have_no_rotation_error(robot):
+    # A marker-only source's wrists carry no rotation (use_rotation False): 10 deg off there is not an error.
+    tr = synthetic_trace(robot, {}, rot_offset=np.array([0.0, 0.0, np.radians(10.0)]))
+    tr.ref_rot = {n: np.arange(K) >= 100 for n in WRISTS}
+    m = trace_metrics(tr, robot)
+    assert m["wrist_rot_err_deg"]["mean"] == pytest.approx(10.0, rel=1e-6)
+    assert len(rotation_errors(tr.ref_R, tr.kin_R, rotation_ok(tr))) == 2 * (K - 100)
+    tr.ref_rot = {n: np.zeros(K, bool) for n in WRISTS}
+    assert trace_metrics(tr, robot)["wrist_rot_err_deg"]["mean"] is None
 
 
 def test_reachable_mask_follows_level_one_residual(robot):

@@ -203,3 +203,18 @@ def test_task_targets_carry_optional_upper_arms_validated():
         with pytest.raises(MessageError) as exc:
             TaskTargets.decode(msgpack.packb(d))
         assert exc.value.reason == reason, (bad, exc.value)
+
+
+def test_human_frame_says_whether_its_orientations_are_measured():
+    # A marker-only source sends oriented=False ("ori"); a payload without the key (older sources) is oriented;
+    # anything but a bool is rejected with its reason.
+    bones = {"left_wrist": Bone(np.array([0.1, 0.2, 0.3]), np.array([1.0, 0.0, 0.0, 0.0]))}
+    frame = HumanFrame(Header(1, 0.1, 5), "c3d:x", Pose(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])), bones, False)
+    assert HumanFrame.decode(frame.encode()).oriented is False
+    body = frame.body()
+    del body["ori"]
+    assert HumanFrame.from_body(body).oriented is True
+    body["ori"] = 1
+    with pytest.raises(MessageError) as err:
+        HumanFrame.from_body(body)
+    assert err.value.reason == "type" and "ori" in str(err.value)

@@ -35,7 +35,7 @@ class PerTargetRetargeter(Retargeter):
         return targets
 
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
-        use_rot = t in WRISTS or self.config.elbow_rotation
+        use_rot = frame.oriented and (t in WRISTS or self.config.elbow_rotation)
         bone = frame.bones.get(self.bone_of[t])
         if bone is None or not bone.valid:
             self.counts[f"invalid_{t}"] += 1
