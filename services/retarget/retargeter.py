@@ -143,9 +143,10 @@ class RetargetConfig:
             angle past a stop. Off by default: see the retarget README for the measurement.
         forearm_blend: with ``orientation_reference="forearm"``, fade the forearm frames' rotation about the
             forearm in and out as either arm straightens (:func:`.orientation.arm_alignment`), instead of
-            the switch at ``STRAIGHT_SIN`` (a jump of up to ~18 deg per frame in the wrist target). On by
-            default (issue 12: the wrist orientation target continuous in time); it moves the targets of five
-            of the 25 real clips by under 1 deg and their rotation errors by under 0.3 deg p99 (retarget README).
+            the switch at ``STRAIGHT_SIN`` (a jump of up to ~18 deg per frame in the wrist target). Off by
+            default: at 30 fps the arms cross the blend's band within one frame, so it hardly lowers the step at
+            the switch frames (byebye_happy 14.1 -> 13.2 deg), and on by default it moved the vigorous clips'
+            targets enough that the numpy reference HQP dropped a level once (``test_degenerate_levels``).
     """
 
     mode: str = MODES[0]
@@ -170,7 +171,7 @@ class RetargetConfig:
     upper_arms: bool = False
     consistent_targets: bool = False
     wrist_range: bool = False
-    forearm_blend: bool = True
+    forearm_blend: bool = False
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
