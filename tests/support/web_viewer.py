@@ -171,9 +171,12 @@ class WebViewer:
         return res.get("result", {}).get("value")
 
     def url(self) -> str:
-        """The viewer page, told to read the served recording and to render with WebGL."""
+        """The viewer page, told to read the served recording, to render with WebGL, and to take its examples
+        list from an empty inline manifest: by default it fetches one from app.rerun.io, which fails offline and
+        puts a toast with an orange icon over the time-series column at a moment no screenshot can predict."""
         data = f"rerun+http://127.0.0.1:{self.grpc_port}/proxy"
-        return f"http://127.0.0.1:{self.web_port}/?" + urllib.parse.urlencode({"url": data, "renderer": "webgl"})
+        query = {"url": data, "renderer": "webgl", "manifest_url": "data:application/json,[]"}
+        return f"http://127.0.0.1:{self.web_port}/?" + urllib.parse.urlencode(query)
 
     def open(self, timeout: float) -> None:
         """Connect to Chromium, load the viewer and wait for its application to run (``timeout`` [s])."""
