@@ -334,9 +334,10 @@ class SelfCollisionAvoidance:
         0.25 ms) out to ``d_i + REFRESH_PAD``, and again only once the links have moved far enough that a pair
         could have closed that pad (``_travel``, from the links' poses: one forward-kinematics pass). In between,
         each measured pair's distance follows the joints to first order, ``d = d_ref - G_ref (q - q_ref)`` (its
-        rows keep the measured Jacobians): a second-order error, hundredths of a millimetre on a real path
-        (tested), where the safety distance is centimetres. Why: measured every tick, the rows took the solver's tick
-        from 0.10 to 0.22-0.43 ms p50 and the stack fell behind real time on 2 cores (``SolverConfig``).
+        rows keep the measured Jacobians): a second-order error, under half a millimetre on the tested path
+        (``test_rows_between_measurements_follow_the_joints``), where the safety distance is centimetres.
+        Why: measured every tick, the rows took the solver's tick from 0.10 to 0.22-0.43 ms p50 and the stack
+        fell behind real time on 2 cores (``SolverConfig``).
 
         With this step's velocity box ``[lb, ub]`` (n,) [rad/s]: each row raised to what the box can meet
         (``Inequalities.reachable_within``) and the rows every velocity of the box meets dropped (they
