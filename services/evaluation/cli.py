@@ -39,6 +39,11 @@ MOVING_OPTIONS = {
     "consistent_targets": "publish per arm the elbow and wrist orientation of the posture meeting the wrist target",
     "wrist_range": "clip the wrist orientation targets into the wrist joints' ranges",
 }
+#: Every retarget switch ``mimic eval`` takes as ``--[no-]<field>`` (RetargetConfig field -> flag help).
+RETARGET_SWITCHES = {
+    **MOVING_OPTIONS,
+    "forearm_blend": "fade the forearm alignment of the wrist orientation as an arm straightens instead of switching",
+}
 PAPER = {
     "hqp-nullspace": {"wrist_err_cm": {"mean": 0.12, "max": 0.65}, "elbow_err_cm": {"mean": 0.75, "max": 2.10}},
     "wqp": {"wrist_err_cm": {"mean": 0.22, "max": 2.50}, "elbow_err_cm": {"mean": 5.58, "max": 9.53}},
@@ -87,22 +92,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=RetargetConfig().velocity_tau,
         help="retarget velocity low-pass time constant [s] (default: the service's)",
     )
-    for field, text in MOVING_OPTIONS.items():
+    for field, text in RETARGET_SWITCHES.items():
+        moves = (
+            "; the JSON then gives, per clip, how far the targets moved from the plain retargeted ones "
+            "(target_adjustment) and the errors against those (*_vs_operator)"
+            if field in MOVING_OPTIONS
+            else ""
+        )
         p.add_argument(
             f"--{field.replace('_', '-')}",
             action=argparse.BooleanOptionalAction,
             default=getattr(RetargetConfig(), field),
-            help=f"{text} (RetargetConfig.{field}; default: the service's); the JSON then gives, per clip, how "
-            "far the targets moved from the plain retargeted ones (target_adjustment) and the errors against "
-            "those (*_vs_operator)",
+            help=f"{text} (RetargetConfig.{field}; default: the service's){moves}",
         )
-    p.add_argument(
-        "--forearm-blend",
-        action=argparse.BooleanOptionalAction,
-        default=RetargetConfig().forearm_blend,
-        help="fade the forearm alignment of the wrist orientation as an arm straightens instead of switching "
-        "(RetargetConfig.forearm_blend; default: the service's)",
-    )
     p.add_argument(
         "--no-ik-check",
         action="store_true",
@@ -314,7 +316,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
-    for k in (*MOVING_OPTIONS, "forearm_blend"):
+    for k in RETARGET_SWITCHES:
         retarget[k] = getattr(args, k, getattr(defaults, k))
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from services.retarget.elbow import elbow_circle
+from shared.rotations import quats_to_matrices
 
 
 def yaw_pitch_rotations(
@@ -33,16 +34,7 @@ def yaw_pitch_rotations(
     cy, sy = np.cos(half[1]), np.sin(half[1])
     # q_z ⊗ q_y with q_z = (cz, 0, 0, sz), q_y = (cy, 0, sy, 0)
     q = np.stack([cz * cy, -sz * sy, cz * sy, sz * cy], axis=1)
-    w, x, y, z = q.T
-    R = np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1),
-        ],
-        axis=1,
-    )
-    return q, R
+    return q, quats_to_matrices(q.copy())
 
 
 def _quat_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -256,6 +256,8 @@ class Retargeter(FrameIntake):
             if self.config.wrist_range and self.config.elbow_placement == "swivel"
             else {}
         )
+        #: side -> rows of its wrist and elbow in the per-frame target arrays (``TARGET_NAMES`` order)
+        self._arm_rows = {s: (TARGET_NAMES.index(wrist_of(s)), TARGET_NAMES.index(elbow_of(s))) for s in SIDES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.rejects: Counter[str] = Counter()
@@ -288,6 +290,7 @@ class Retargeter(FrameIntake):
         self._has_prev = [False] * n
         self._eye_stack = np.tile(np.eye(3), (n, 1, 1))
         self._use_rotation = [t in WRISTS or self.config.elbow_rotation for t in TARGET_NAMES]
+        self._no_rotation = [False] * len(TARGET_NAMES)  # a source without measured orientations
         #: low-pass filtered linear [m/s] and angular [rad/s] velocities, a row per target
         self._vfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
         self._wfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
@@ -579,7 +582,7 @@ class Retargeter(FrameIntake):
         previous frame's posture; from rest after a gap (``max_gap``) or a new stream."""
         gap = dt is None or dt > self.config.max_gap
         for side, arm in self.consistent.items():
-            iw, ie = TARGET_NAMES.index(wrist_of(side)), TARGET_NAMES.index(elbow_of(side))
+            iw, ie = self._arm_rows[side]
             if not (valid[iw] and valid[ie]):
                 continue  # wrist-only (or invalid) arms are published as mapped
             if gap:
@@ -644,7 +647,7 @@ class Retargeter(FrameIntake):
                 if not valid[i]:
                     R[i] = self._held_R[i]
         for side, wr in self.wrist_ranges.items():
-            iw, ie = TARGET_NAMES.index(wrist_of(side)), TARGET_NAMES.index(elbow_of(side))
+            iw, ie = self._arm_rows[side]
             if valid[iw] and valid[ie]:  # (the forearm needs both; wrist-only arms are published as mapped)
                 R_in = R[iw]
                 out = wr(R_in, P[ie], P[iw])
@@ -671,7 +674,7 @@ class Retargeter(FrameIntake):
         # to copy: mapped as real, the hand would stay fixed in the pelvis frame while the forearm moves and the
         # solver would twist the wrist to its stops chasing it (h12r: the Vicon clip, 356 of 521 frames past
         # the wrist's ranges). Its targets carry no rotation; the solver then tracks positions only.
-        use = self._use_rotation if frame.oriented else [False] * len(TARGET_NAMES)
+        use = self._use_rotation if frame.oriented else self._no_rotation
         return {
             t: Target(P[i], q[i], V[i], W[i], valid=valid[i], use_rotation=use[i]) for i, t in enumerate(TARGET_NAMES)
         }

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+from scipy.spatial.transform import Rotation
 
 from services.retarget.orientation import align, arm_frame
 from services.solver.quintic import RAW_POSITION_MARGIN
@@ -49,26 +50,13 @@ PASSES = 4
 
 
 def euler_xyz(M: np.ndarray) -> np.ndarray:
-    """Angles (3,) [rad] with ``M = Rx(a) Ry(b) Rz(c)`` (3, 3), on the branch ``|b| <= pi/2``."""
-    b = np.arcsin(np.clip(M[0, 2], -1.0, 1.0))
-    return np.array([np.arctan2(-M[1, 2], M[2, 2]), b, np.arctan2(-M[0, 1], M[0, 0])])
+    """Angles (3,) [rad] with ``M = Rx(a) Ry(b) Rz(c)`` (3, 3) (intrinsic x-y-z), on the branch ``|b| <= pi/2``."""
+    return Rotation.from_matrix(M).as_euler("XYZ")
 
 
 def from_euler_xyz(e: np.ndarray) -> np.ndarray:
     """``Rx(a) Ry(b) Rz(c)`` (3, 3) for angles e (3,) [rad]."""
-    ca, cb, cc = np.cos(e)
-    sa, sb, sc = np.sin(e)
-    Rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
-    Ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
-    Rz = np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]])
-    return Rx @ Ry @ Rz
-
-
-def _nearest_rotation(M: np.ndarray) -> np.ndarray:
-    """The rotation (3, 3) closest to M (3, 3) in the Frobenius norm (SVD)."""
-    U, _s, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    return Rotation.from_euler("XYZ", e).as_matrix()
 
 
 def forearm_offset(robot: RobotModel, side: str, centre: np.ndarray) -> np.ndarray:
@@ -99,12 +87,13 @@ def forearm_offset(robot: RobotModel, side: str, centre: np.ndarray) -> np.ndarr
     C_rest = offset(robot.q_rest, 0.0)
     if C_rest is None:
         raise ValueError(f"{side} arm: straight at the rest pose; wrist_range needs its elbow bent there")
-    acc = np.zeros((3, 3))
+    kept = []
     for q in robot.random_configurations(OFFSET_SAMPLES, np.random.default_rng(OFFSET_SEED)):
         C = offset(q, MIN_BEND_SIN)
         if C is not None and np.trace(C_rest.T @ C) > 1.0:  # within 90 deg of the rest pose's bend
-            acc += C
-    return _nearest_rotation(acc)
+            kept.append(C)
+    # the chordal mean: the rotation nearest the samples' mean matrix
+    return Rotation.from_matrix(np.array(kept)).mean().as_matrix()
 
 
 class WristRange:

@@ -708,7 +708,7 @@ class SolverCore:
         status, reason = self._status(qd, sol, held, reason)
         self._level1_met = bool(sol.ok and sol.residuals and sol.residuals[0] <= self.config.infeasible_tol)
         if self._publish_state(qd, dt):
-            reason = (reason + "; " if reason else "") + "safety clamp (smoother)"
+            reason = _also(reason, "safety clamp (smoother)")
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
     def _solve(self, levels: list, lb: np.ndarray, ub: np.ndarray, ineq: Inequalities | None) -> Solution:
@@ -831,7 +831,7 @@ class SolverCore:
         # Beyond 1e-9 rad/s of the box is a safety clamp (the algorithms stay inside it up to round-off).
         if worst > 1e-9:
             self.counts["safety_clamps"] += 1
-            reason = (reason + "; " if reason else "") + "safety clamp"
+            reason = _also(reason, "safety clamp")
         return reason
 
     def _status(self, qd: np.ndarray | None, sol: Solution, held: list[str], reason: str) -> tuple[str, str]:
@@ -959,6 +959,11 @@ class SolverCore:
             reason=reason,
             t_cmd=t,
         )
+
+
+def _also(reason: str, part: str) -> str:
+    """A command's reason text with one more part."""
+    return f"{reason}; {part}" if reason else part
 
 
 def _aim_pose(task: FrameTask, s: TargetSample, cost: float) -> None:
