@@ -51,6 +51,10 @@ SKELETON: tuple[tuple[str, str | None, tuple[float, float, float], tuple[float, 
     ("RightFoot", "RightLeg", (0.0, -43.0, 0.0), (0.0, -7.0, 13.0)),
 )
 HIP_HEIGHT = 100.0  # [cm]
+#: Wrists [cm] of the arms hanging at the sides, where every demo motion starts and ends.
+REST_WRIST = {"Left": np.array([21.0, 92.0, 6.0]), "Right": np.array([-21.0, 92.0, 6.0])}
+#: Elbow direction hints there: the elbows a little out and behind, as arms hang.
+REST_HINT = {"Left": np.array([0.3, 0.0, -1.0]), "Right": np.array([-0.3, 0.0, -1.0])}
 _IDX = {name: i for i, (name, *_rest) in enumerate(SKELETON)}
 
 
@@ -172,20 +176,52 @@ def synthesize(
     return BvhData(joints, 1.0 / fps, motion)
 
 
-def box_lift(fps: float = DEMO_FPS, duration: float = 6.0) -> BvhData:
+def _away_from_rest(t: np.ndarray, duration: float) -> np.ndarray:
+    """(T,) 0 at rest, 1 in the motion: a minimum-jerk second out of rest at the start, back in at the end."""
+    return min_jerk(t / 1.0) - min_jerk((t - (duration - 1.0)) / 1.0)
+
+
+def _from_rest(
+    t: np.ndarray, duration: float, wrists: dict[str, np.ndarray], hints: dict[str, np.ndarray]
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Wrist paths and elbow hints that leave the rest pose in the first second and are back at it in the last.
+
+    Why: the demo plays its motions one after another in a loop; a motion that started or ended away from rest
+    made the operator's hands jump (13 cm from the box held low to the hanging arms of the ellipse), and the
+    robot race across the gap by its own route, past its torso. Every motion here starts and ends at
+    ``REST_WRIST`` with the elbows towards ``REST_HINT``, so the loop is continuous.
+
+    Args:
+        t: (T,) frame times [s]. duration: [s].
+        wrists: "Left"/"Right" -> (T, 3) the motion's wrist paths [cm].
+        hints: "Left"/"Right" -> (3,) or (T, 3) the motion's elbow direction hints.
+    """
+    w = _away_from_rest(t, duration)[:, None]
+    return (
+        {side: REST_WRIST[side] + w * (p - REST_WRIST[side]) for side, p in wrists.items()},
+        {side: REST_HINT[side] + w * (np.asarray(h) - REST_HINT[side]) for side, h in hints.items()},
+    )
+
+
+def box_lift(fps: float = DEMO_FPS, duration: float = 7.6) -> BvhData:
     """Both hands hold a 34 cm box by its sides, elbows bent outward, lift it from hip to chest height and back.
 
-    Phases [s]: hold low 0-0.8, lift 0.8-2.8, hold high 2.8-3.6, lower 3.6-5.4, hold to the end.
+    Phases [s]: reach from rest to the box 0-1, hold low 1-1.4, lift 1.4-3.4, hold high 3.4-4.2, lower 4.2-6.0,
+    hold low, let go and back to rest in the last second.
     """
     t = np.arange(round(duration * fps)) / fps
-    s = min_jerk((t - 0.8) / 2.0) - min_jerk((t - 3.6) / 1.8)
+    s = min_jerk((t - 1.4) / 2.0) - min_jerk((t - 4.2) / 1.8)
     low, high = np.array([0.0, 106.0, 30.0]), np.array([0.0, 134.0, 36.0])
     center = low + s[:, None] * (high - low)
     half_w = 17.0
     offset = np.array([half_w, 0.0, 0.0])
-    wrists = {"Left": center + offset, "Right": center - offset}
-    hints = {"Left": np.array([1.0, -0.35, 0.0]), "Right": np.array([-1.0, -0.35, 0.0])}
-    lean = np.radians(8.0) * (1.0 - s)
+    wrists, hints = _from_rest(
+        t,
+        duration,
+        {"Left": center + offset, "Right": center - offset},
+        {"Left": np.array([1.0, -0.35, 0.0]), "Right": np.array([-1.0, -0.35, 0.0])},
+    )
+    lean = np.radians(8.0) * (1.0 - s) * _away_from_rest(t, duration)  # leaning over the box held low
     return synthesize(len(t), fps, lean, wrists, hints)
 
 
@@ -195,17 +231,16 @@ def ellipse(fps: float = DEMO_FPS, duration: float = 7.0, laps: float = 2.0) -> 
     The hand moves from rest to the ellipse (0-1 s), traces ``laps`` laps, and returns (last second).
     """
     t = np.arange(round(duration * fps)) / fps
-    rest_r = np.array([-21.0, 92.0, 6.0])
     c = np.array([-20.0, 128.0, 38.0])
     a, b = 15.0, 10.0
     trace = duration - 2.0
     phase = 2.0 * np.pi * laps * min_jerk((t - 1.0) / trace)
     path = c + np.stack([a * np.cos(phase), b * np.sin(phase), np.zeros_like(phase)], axis=1)
-    w_in = min_jerk(t / 1.0) - min_jerk((t - (duration - 1.0)) / 1.0)
-    right = rest_r + w_in[:, None] * (path - rest_r)
-    left = np.tile([21.0, 92.0, 6.0], (len(t), 1))
-    hints = {"Left": np.array([0.3, 0.0, -1.0]), "Right": np.array([-0.6, -1.0, -0.2])}
-    return synthesize(len(t), fps, np.zeros(len(t)), {"Left": left, "Right": right}, hints)
+    left = np.tile(REST_WRIST["Left"], (len(t), 1))
+    wrists, hints = _from_rest(
+        t, duration, {"Left": left, "Right": path}, {"Left": REST_HINT["Left"], "Right": np.array([-0.6, -1.0, -0.2])}
+    )
+    return synthesize(len(t), fps, np.zeros(len(t)), wrists, hints)
 
 
 DEMO_MOTIONS: dict[str, Callable[..., BvhData]] = {"box_lift": box_lift, "ellipse": ellipse}

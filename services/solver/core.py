@@ -188,24 +188,18 @@ class SolverConfig:
             the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4 s.
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
             every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
-            ``mj_collision`` call a tick, rows only for pairs within d_i that the step's box could break,
-            so most gesture ticks keep the box-only QP); off, or a profile without the table, leaves only
-            the joint limits. On: with the MuJoCo sim on run_happy, dash_active, kick_normal and
-            wave-left-hand masculine, the sim's arm self-collision steps go 466/23/1904/78 -> 0 (hqp and
-            wqp), min clearance >= 1.6 cm; gesture errors unchanged. Cost, CPU time on a shared 2-core
-            box: about 0.25 ms a tick for the distances and rows when measured (as the mesh version it
-            replaces), which since session 9 happens only when the links could have closed a 3 cm pad
-            (``collision.SelfCollisionAvoidance.rows``; every 11th tick on guide_normal): tick p50 0.43 ->
-            0.28 ms on bow_old (arms near the body, rows reach the QP on most ticks), 0.22 -> 0.16 ms on
-            guide_normal, against 0.10 off. **Off by default** (``mimic solve --self-collision``): shipped
-            on before that, the full test suite on a quiet 2-core machine took 951 s instead of ~510 s and
-            the live stack fell behind real time (the sim held for want of commands: 339 states at a solver
-            start-up, retarget and the solver dropping frames and commands); with the cheaper rows, ``make
-            demo`` beside a training job still published 15 % fewer commands (8397 against 9921), and at
-            load ~2 (two runs each) 3 % fewer, latency p50 9.6-9.8 against 9.2-9.5 ms, the steady elbow error
-            0.25 against 0.13 cm (reproduced offline only with measured joints fed back: the damper holds the
-            arm for ~0.1 s as it swings past the torso onto the ellipse, and the elbow then stays 0.7-1.0 cm
-            off for 1.5 s with no row present; solver README), so it stays off.
+            ``mj_collision`` call when the links could have closed a 3 cm pad since the last one, rows only
+            for pairs within d_i that the step's box could break, so most gesture ticks keep the box-only QP);
+            off (``mimic solve --no-self-collision``), or a profile without the table, leaves only the joint
+            limits. **On by default since session 10.** 25 real clips with the MuJoCo sim (``mimic eval``,
+            solver README): arm self-collision steps in the sim 0 on every clip (off: 7201 over 8 clips, 149-2866 each),
+            min clearance >= 1.01 cm; errors unchanged except where the operator's own hands are inside the
+            robot's body (bow_old elbow 0.06 -> 2.01 cm, call_normal_001 0.39 -> 2.73 cm: the hand is held
+            out of the torso) and on the vigorous clips, which improve. Cost: tick p50 0.10 -> 0.16 ms on
+            guide_normal, 0.28 ms on bow_old (arms near the body). Session 9 kept it off for a demo artefact
+            that is gone: the demo's box lift ended with the box held low and the stream jumped 13 cm to the
+            ellipse's hanging arms, and the damper steered that jump onto another branch (waist yaw 1.0 rad,
+            the elbow 0.7-1.0 cm off for 1.5 s); the demo motions now start and end at rest.
     """
 
     algo: str = "hqp-nullspace"
@@ -231,7 +225,7 @@ class SolverConfig:
     measured_timeout: float = 0.25
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
-    self_collision: bool = False
+    self_collision: bool = True
     elbow_orientation_cost: float = 0.3
     recovery: bool = True
     range_centring_cost: float = 3.0

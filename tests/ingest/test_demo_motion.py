@@ -52,16 +52,30 @@ def test_bone_lengths_constant(demo):
 
 def test_box_lift_elbows_out_and_box_rises(demo):
     clip = demo["box_lift"]
-    lw, rw = clip.positions["left_wrist"], clip.positions["right_wrist"]
+    held = (clip.times >= 1.0) & (clip.times <= clip.duration - 1.0)  # between reaching for it and letting go
+    lw, rw = clip.positions["left_wrist"][held], clip.positions["right_wrist"][held]
     assert np.ptp(lw[:, 2]) > 0.25  # the box goes up ~28 cm
     assert np.allclose(lw[:, 1] - rw[:, 1], 0.34, atol=0.01)  # both hands keep the box width
     assert np.all(lw[:, 0] > 0.2)  # box held in front
     for side, sign in (("left", 1), ("right", -1)):
-        el, sh, wr = (clip.positions[f"{side}_{b}"] for b in ("elbow", "shoulder", "wrist"))
+        el, sh, wr = (clip.positions[f"{side}_{b}"][held] for b in ("elbow", "shoulder", "wrist"))
         assert np.all(sign * (el[:, 1] - sh[:, 1]) > 0.05)  # elbows out beyond the shoulders
         assert np.all(sign * (el[:, 1] - wr[:, 1]) > 0.1)
-        f = _flexion(clip, side)
+        f = _flexion(clip, side)[held]
         assert f.min() > 45 and f.max() < 120
+
+
+def test_motions_start_and_end_at_rest_so_the_demo_loop_is_continuous(demo):
+    # The demo plays box_lift, ellipse, box_lift, ... : each motion's last frame must be the next one's first
+    # (the box lift used to end with the box held low, 13 cm from the ellipse's first frame).
+    clips = list(demo.values())
+    for a, b in zip(clips, clips[1:] + clips[:1]):
+        for part in ("left_wrist", "right_wrist", "left_elbow", "right_elbow"):
+            gap = np.linalg.norm(a.world_positions(part)[-1] - b.world_positions(part)[0])
+            assert gap < 0.005, (part, gap)
+        for clip in (a, b):  # and the arms hang there: wrists beside the hips, below the elbows
+            wr, el = clip.world_positions("right_wrist"), clip.world_positions("right_elbow")
+            assert wr[0, 2] < el[0, 2] - 0.2 and wr[-1, 2] < el[-1, 2] - 0.2
 
 
 def test_ellipse_is_drawn(demo):
