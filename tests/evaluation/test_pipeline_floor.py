@@ -47,8 +47,11 @@ def test_noop_pipeline_moves_frames_through_three_processes_and_reports_them(del
     for hop in pipeline_bench.HOPS:
         h = lat[hop]
         assert 0.0 < h["p50"] <= h["p99"] <= h["max"], (hop, h)
-    # Arrival along the path: targets, then commands, then states.
-    assert lat["retarget"]["p50"] <= lat["solver"]["p50"] <= lat["sim"]["p50"]
+    # Arrival along the path, frame by frame: targets, then commands, then states. (Not the hops' p50s against
+    # each other: under load a hop drops frames, and the p50 over the frames that got through can sit below the
+    # hop before's: 1.09 ms against 1.41 in one full run at load ~3.)
+    for hop in pipeline_bench.HOPS[1:]:
+        assert res["hop_increment_ms"][hop]["p50"] > 0.0, (hop, res["hop_increment_ms"][hop])
     assert res["latency_ms"] == lat["sim"]
     assert set(res["hop_ms"]) == set(pipeline_bench.HOPS)
     # Each stand-in ran as its own process, announced as the service it replaces, and worked.
