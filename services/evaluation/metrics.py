@@ -13,6 +13,8 @@ from shared.targets import ELBOWS, WRISTS
 
 #: Level-1 residual under which the strict hierarchy counts a wrist target as met.
 REACHABLE_TOL = 1e-3
+#: Per-clip counts the summary adds up (and gives as integers).
+SUMMED = ("limit_violations", "acceleration_violations", "self_collisions", "qp_fallbacks", "recoveries")
 #: Wrist error [m] above which a tick on a reachable target counts towards ``stuck_s``.
 STUCK_ERR = 0.02
 
@@ -248,6 +250,10 @@ def trace_metrics(
     if ticks:  # a posture policy ran: how often its gate sent an arm to the rest posture instead
         m["policy_ticks"] = int(ticks)
         m["gate_closed_fraction"] = trace.counts.get("gate_closed", 0) / (2.0 * ticks)
+    if trace.policy_p:  # an elbow-kind policy aimed elbow tasks: its prediction's error, and the robot's from it
+        aimed = {n: trace.ref_ok[n] & np.isfinite(p).all(axis=1) for n, p in trace.policy_p.items()}
+        m["policy_elbow_err_cm"] = _stats(cm * position_errors(trace.ref_p, trace.policy_p, aimed, ELBOWS))
+        m["elbow_vs_policy_cm"] = _stats(cm * position_errors(trace.policy_p, trace.kin_p, aimed, ELBOWS))
     if reachable is not None and len(reachable) == len(trace.t):
         m["level1_met_fraction"] = float(reachable.mean())
         m["reachable_fraction"] = float(reachable.mean())
@@ -295,10 +301,12 @@ def summarise(per_clip: list[dict]) -> dict:
     for a in algos:
         ms = [(c["algos"][a], c["frames"]) for c in per_clip if a in c["algos"]]
         s: dict = {}
-        for key in ms[0][0]:
-            vals = [m[key] for m, _ in ms]
+        # every key any clip has, over the clips that have it (``recoveries`` only where the solver started one)
+        for key in dict.fromkeys(k for m, _ in ms for k in m):
+            have = [(m[key], w) for m, w in ms if key in m]
+            vals = [v for v, _ in have]
             if isinstance(vals[0], dict) and "max" in vals[0]:
-                means = [(v["mean"], w) for v, (_, w) in zip(vals, ms) if v.get("mean") is not None]
+                means = [(v["mean"], w) for v, w in have if v.get("mean") is not None]
                 maxes = [v["max"] for v in vals if v.get("max") is not None]
                 p99s = [v["p99"] for v in vals if v.get("p99") is not None]
                 s[key] = {
@@ -310,8 +318,9 @@ def summarise(per_clip: list[dict]) -> dict:
             elif key == "solve_ms":
                 s[key] = {k: float(np.mean([v[k] for v in vals])) for k in ("mean", "p50", "p99")}
             elif isinstance(vals[0], int | float) and not isinstance(vals[0], bool):
-                nums = [v for v in vals if isinstance(v, int | float)]
-                if key in ("limit_violations", "acceleration_violations", "ticks", "self_collisions", "qp_fallbacks"):
+                numbered = [(v, w) for v, w in have if isinstance(v, int | float)]
+                nums = [v for v, _ in numbered]
+                if key in SUMMED or key == "ticks":
                     s[key] = float(np.sum(nums))
                 elif key in ("stuck_s",):
                     s[key] = float(np.max(nums))
@@ -319,11 +328,11 @@ def summarise(per_clip: list[dict]) -> dict:
                     s[key] = float(np.min(nums))
                 elif key.endswith("reachable_fraction"):
                     s[key] = float(np.min(nums))  # the worst clip: the goal holds per clip
-                    s[f"{key}_mean"] = float(np.average(nums, weights=[w for _, w in ms][: len(nums)]))
+                    s[f"{key}_mean"] = float(np.average(nums, weights=[w for _, w in numbered]))
                 else:
                     s[key] = float(np.mean(nums))
         s["limit_violations"] = int(s.get("limit_violations", 0))
-        for key in ("acceleration_violations", "self_collisions", "qp_fallbacks"):
+        for key in SUMMED:
             if key in s:
                 s[key] = int(s[key])
         out[a] = s

@@ -36,7 +36,7 @@ from services.solver.wqp import WeightedQp
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.rotations import quat_to_matrix
-from shared.targets import ELBOWS, TARGET_NAMES, WRISTS
+from shared.targets import ELBOWS, TARGET_NAMES, WRISTS, side_of
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
@@ -63,6 +63,9 @@ class Trace:
         frame_tick: (F,) index of the scored tick each frame arrived on; frame_seq: (F,) its seq;
             frame_p: target -> (F, 3) the frame's own target position [m] (no extrapolation); frame_ok:
             target -> (F,) valid.
+        policy_p: elbow -> (K, 3) [m] the elbow target an elbow-kind posture policy gave that arm's elbow task,
+            advanced to the instant the tick's command is for (NaN on ticks the arm was not policy-driven);
+            empty when no tick was.
     """
 
     algo: str
@@ -89,6 +92,7 @@ class Trace:
     ref_rot: dict[str, np.ndarray] = field(default_factory=dict)
     dt: float = 0.002
     counts: dict[str, int] = field(default_factory=dict)
+    policy_p: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -223,6 +227,7 @@ class _Recorder:
         self.frame_seq: list[int] = []
         self.frame_p = {n: [] for n in TARGET_NAMES}
         self.frame_ok = {n: [] for n in TARGET_NAMES}
+        self.policy_p: dict[str, list] = {n: [] for n in ELBOWS}
 
     def frame(self, msg: TaskTargets) -> None:
         """A frame arriving on the tick about to be recorded: its own targets, for the frame errors."""
@@ -248,6 +253,12 @@ class _Recorder:
                 self.ref_R[n].append(s.R if s is not None else np.eye(3))
                 self.ref_rot[n].append(s is not None and s.use_rotation)
                 self.kin_R[n].append(poses[n][1])
+        # The elbow-kind policy's target of this tick (p, v), at t + dt like the reference: the prediction's own
+        # error and the robot's distance from it split the elbow error (metrics.trace_metrics).
+        aimed = getattr(self.core, "policy_elbow", {})
+        for n in ELBOWS:
+            e = aimed.get(side_of(n))
+            self.policy_p[n].append(e[0] + dt * e[1] if e is not None else np.full(3, np.nan))
         if self.simcore is not None:
             for n, pose in self.simcore.frame_poses().items():
                 self.sim_p[n].append(pose.p)
@@ -302,6 +313,7 @@ class _Recorder:
             frame_ok=arr(self.frame_ok),
             dt=dt,
             counts=dict(self.core.counts),
+            policy_p={n: np.asarray(v) for n, v in self.policy_p.items() if np.isfinite(v).any()},
         )
 
 

@@ -136,3 +136,18 @@ def test_summary_weights_means_by_frames_and_takes_max_of_max(robot):
     assert s["x"]["wrist_err_cm"]["mean"] == pytest.approx((30 * 1.0 + 10 * 4.0) / 40)
     assert s["x"]["elbow_err_cm"]["max"] == pytest.approx(4.0)
     assert isinstance(s["x"]["limit_violations"], int)
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_summary_takes_a_key_only_some_clips_have_over_those_clips(robot, first):
+    """``recoveries`` is only in the metrics of a run whose solver started one: the summary must neither fail
+    (it raised KeyError when the first clip had the key) nor drop it (it did when a later clip had it)."""
+    a = trace_metrics(synthetic_trace(robot, {n: np.array([0.01, 0, 0]) for n in TARGET_NAMES}), robot)
+    b = trace_metrics(synthetic_trace(robot, {n: np.array([0.04, 0, 0]) for n in TARGET_NAMES}), robot)
+    b["recoveries"] = 3
+    b["elbow_vs_policy_cm"] = {"mean": 2.0, "p99": 2.5, "max": 3.0}
+    clips = [{"clip": "a", "frames": 30, "algos": {"x": a}}, {"clip": "b", "frames": 10, "algos": {"x": b}}]
+    s = summarise(clips[::-1] if first else clips)["x"]
+    assert s["recoveries"] == 3 and isinstance(s["recoveries"], int)
+    assert s["elbow_vs_policy_cm"] == {"mean": 2.0, "p99": 2.5, "max": 3.0}
+    assert s["wrist_err_cm"]["mean"] == pytest.approx((30 * 1.0 + 10 * 4.0) / 40)

@@ -111,3 +111,30 @@ def test_wrist_only_run_hides_the_elbows_from_the_solver_but_scores_them(robot):
     assert wo_tr.ref_ok["left_elbow"].all()  # scored on every tick
     assert wo["wrist_err_cm"]["mean"] < 0.02  # the wrists are tracked as before
     assert wo["elbow_err_cm"]["mean"] > 10 * full["elbow_err_cm"]["mean"]  # the elbows are not seen
+
+
+def test_wrist_only_policy_run_splits_the_elbow_error_at_the_policy_target(robot, tmp_path):
+    """An elbow-kind policy that always predicts one point per arm: the trace records that point as the elbow
+    target on every tick, and the metrics give its distance from the operator's elbow and the robot's from it."""
+    from tests.posture.policy_files import write_random_policy
+
+    rest = robot.frame_poses(robot.q_rest)
+    point = {s: rest[f"{s}_elbow"][0] + np.array([0.03, 0.0, -0.04]) for s in ("left", "right")}
+    path = write_random_policy(tmp_path / "point.npz", robot, elbow=point)  # gate open (threshold 1 km)
+    targets = fk_targets(robot, np.arange(0.0, DURATION, 1.0 / RATE))
+    policy = {"posture_policy": str(path)}
+    tr = run_algorithm(robot, targets, "hqp-nullspace", qp="daqp", solver=policy, wrist_only=True)
+    m = trace_metrics(tr, robot)
+    aimed, err, off = [], [], []
+    for s in ("left", "right"):
+        n = f"{s}_elbow"
+        ok = tr.ref_ok[n]
+        aimed.append(np.abs(tr.policy_p[n] - point[s]).max())
+        err.append(np.linalg.norm(tr.ref_p[n][ok] - point[s], axis=1))
+        off.append(np.linalg.norm(tr.kin_p[n][ok] - point[s], axis=1))
+    assert max(aimed) < 1e-6  # float32 inference of the point, on every tick
+    assert m["policy_elbow_err_cm"]["mean"] == pytest.approx(100 * np.concatenate(err).mean(), abs=1e-4)
+    assert m["elbow_vs_policy_cm"]["mean"] == pytest.approx(100 * np.concatenate(off).mean(), abs=1e-4)
+    assert m["policy_elbow_err_cm"]["mean"] > 1.0  # the point is not the operator's elbow
+    full = trace_metrics(run_algorithm(robot, targets, "hqp-nullspace", qp="daqp"), robot)
+    assert "policy_elbow_err_cm" not in full and "elbow_vs_policy_cm" not in full
