@@ -151,6 +151,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="strict HQPs: the lock-up recovery (SolverConfig.recovery; default: SolverConfig's)",
     )
+    p.add_argument(
+        "--target-acceleration",
+        choices=("on", "off"),
+        default=None,
+        help="extrapolate the targets between frames with the acceleration between consecutive frames "
+        "(SolverConfig.target_acceleration; default: SolverConfig's); the tick errors' reference and mink's "
+        "targets follow the same extrapolation",
+    )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -308,6 +316,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     recovery = getattr(args, "recovery", None)
     if recovery is not None:
         solver["recovery"] = recovery == "on"
+    target_acceleration = getattr(args, "target_acceleration", None)
+    if target_acceleration is not None:
+        solver["target_acceleration"] = target_acceleration == "on"
     collision = self_collision_choice(args)
     if collision is not None:
         solver["self_collision"] = collision

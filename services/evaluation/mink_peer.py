@@ -62,9 +62,18 @@ class MinkPeer:
         solver: qpsolvers backend name for ``mink.solve_ik``.
         limited: clip mink's joint velocities into the position/velocity/acceleration box of ``robot``
             (``JointBounds``) before integrating ("mink-limited").
+        config: our solvers' settings (default: ``SolverConfig()``); the peer reads the target tracking
+            (horizon, timeout, acceleration) and the task costs from it, so it gets the targets ours get.
     """
 
-    def __init__(self, robot: RobotModel, rate: float = 500.0, solver: str = "daqp", limited: bool = False):
+    def __init__(
+        self,
+        robot: RobotModel,
+        rate: float = 500.0,
+        solver: str = "daqp",
+        limited: bool = False,
+        config: SolverConfig | None = None,
+    ):
         mink = require_mink()
         from shared.robot.mujoco_model import build_mujoco_robot
 
@@ -72,11 +81,11 @@ class MinkPeer:
         self.robot = robot
         self.dt = 1.0 / rate
         self.solver = solver
-        cfg = SolverConfig()
+        cfg = SolverConfig() if config is None else config
         #: the solver settings the tracker and the eval read (as :class:`SolverCore` has them)
         self.config = cfg
         self.counts: dict[str, int] = {}
-        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.tracker = TargetTracker.for_solver(cfg)
         mj = build_mujoco_robot(robot.profile, joint_names=robot.joint_names)
         self.mj = mj
         model = mj.model

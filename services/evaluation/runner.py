@@ -132,7 +132,7 @@ def run_algorithm(
             still measured against the full targets (the operator's retargeted elbows).
     """
     if algo in PEERS:
-        core = MinkPeer(robot, rate, limited=algo == MINK_LIMITED)
+        core = MinkPeer(robot, rate, limited=algo == MINK_LIMITED, config=SolverConfig(**(solver or {})))
     else:
         core = _solver_core(robot, algo, qp, rate, solver, wqp_weights)
     simcore = _sim_core(robot) if sim else None
@@ -143,7 +143,7 @@ def run_algorithm(
 
         coll = SelfCollision(robot.profile, simcore.joint_names if simcore is not None else robot.joint_names)
     # The reference the errors are measured against: the full targets, even when the solver sees less.
-    reference = TargetTracker(core.config.target_horizon, core.config.target_timeout)
+    reference = TargetTracker.for_solver(core.config)
     fed = {id(tt): w for tt, w in zip(targets, wrist_only_targets(targets))} if wrist_only else None
     rec = _Recorder(robot, core, simcore, reference, coll)
     for t, msg in _arrivals(targets, settle, dt):

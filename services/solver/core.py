@@ -94,6 +94,18 @@ class SolverConfig:
             reachable targets (tests/evaluation); 1e-5 brings that to 0.03 mm and 0.14 deg.
         smoothing: quintic smoothing on/off. smoothing_ticks: its horizon [ticks].
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
+        target_acceleration: extrapolate the target positions between frames along a parabola, with the
+            acceleration between consecutive frames' velocities, instead of at constant velocity
+            (``targets.TargetTracker``). Off: a trade. On the 25 clips (``mimic eval --target-acceleration on``,
+            h12w notes) the wrist mean falls on 22 clips (wave-both-hands 0.248 -> 0.083 cm, all clips 0.261 ->
+            0.184) and the wrist frame error with it (0.550 -> 0.348 cm), but the wrist rotation p99 rises on
+            raise-up-both-hands normal (9.3 -> 17.6 deg) and kick_normal, the elbow on guide_active (+12 %), and
+            raise-up-both-hands exhausted's arms take another branch overhead (elbow 0.65 -> 1.89 cm).
+        target_velocity_lag: the published velocity's lag behind its frame [frame intervals], with
+            ``target_acceleration``: 0.5 for the retargeter's backward differences, 0 for a source that measures
+            velocity.
+        target_acceleration_memory: frames [-] over which the share of the acceleration estimate is fitted, with
+            ``target_acceleration`` (0: all of it, no fit; ``targets.TargetTracker._estimate_acceleration``).
         resync_threshold: with ``closed_loop``, re-anchor on the measured joints beyond this drift [rad].
         task_acceleration: acceleration [m/s^2] the wrist (level-1) errors are closed with at
             most: their gain is capped so the demanded speed can still be braked to zero at the error
@@ -218,6 +230,9 @@ class SolverConfig:
     smoothing_ticks: int = 4
     target_horizon: float = 0.05
     target_timeout: float = 0.5
+    target_acceleration: bool = False
+    target_velocity_lag: float = 0.5
+    target_acceleration_memory: float = 10.0
     resync_threshold: float = 0.3
     closed_loop: bool = False
     task_acceleration: float | None = None
@@ -258,6 +273,11 @@ class SolverConfig:
         bad = {k: v for k, v in gains.items() if v is not None and not v > 0}
         if bad:
             raise ValueError(f"gains [1/s] must be > 0, got {bad}")
+        if not self.target_velocity_lag >= 0.0 or not self.target_acceleration_memory >= 0.0:
+            raise ValueError(
+                f"target_velocity_lag and target_acceleration_memory must be >= 0, got "
+                f"{self.target_velocity_lag}, {self.target_acceleration_memory}"
+            )
         if self.task_acceleration is not None and not self.task_acceleration > 0:
             raise ValueError(f"task_acceleration must be > 0 [m/s^2] or None, got {self.task_acceleration}")
         if self.level1_reserve is not None and not 0.0 <= self.level1_reserve < 1.0:
@@ -303,7 +323,7 @@ class SolverCore:
 
         #: the per-tick kernels, or None: the numpy steps, their reference (``_advance_raw``)
         self._kernel = tick_kernel
-        self.tracker = TargetTracker(cfg.target_horizon, cfg.target_timeout)
+        self.tracker = TargetTracker.for_solver(cfg)
         self.slow = SlowJoints(robot.amax, robot.q_rest, cfg.slow_joint_acceleration, cfg.posture_gain)
         a_task = cfg.task_acceleration
         if a_task is None:
