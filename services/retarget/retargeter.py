@@ -152,11 +152,11 @@ class RetargetConfig:
             the switch frames (byebye_happy 14.1 -> 13.2 deg), and on by default it moved the vigorous clips'
             targets enough that the numpy reference HQP dropped a level once (``test_degenerate_levels``).
         trunk_clearance: keep every wrist target's robot hand (posed at the target) outside the robot's trunk at
-            the waist's rest posture by the profile's collision safety distance plus 5 mm, pushed out along the
-            trunk's surface normal (:mod:`.trunk`); the swivel elbow is then placed for the pushed wrist. Without
-            it a hand resting on the operator's belly is inside the G1's thicker trunk, and a strict HQP with
-            self-collision avoidance reaches it by turning the waist (call_normal_001: yaw -40 deg). See the
-            retarget README for the measurement.
+            the waist's rest posture by the profile's collision safety distance plus 5 mm, pushed out from the
+            trunk link's axis (the surface normal on the torso's front; :mod:`.trunk`); the swivel elbow is then
+            placed for the pushed wrist. Without it a hand resting on the operator's belly is inside the G1's
+            thicker trunk, and a strict HQP with self-collision avoidance reaches it by turning the waist
+            (call_normal_001: yaw -40 deg). See the retarget README for the measurement.
     """
 
     mode: str = MODES[0]
