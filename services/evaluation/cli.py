@@ -38,6 +38,7 @@ log = logging.getLogger("mimic.eval")
 MOVING_OPTIONS = {
     "consistent_targets": "publish per arm the elbow and wrist orientation of the posture meeting the wrist target",
     "wrist_range": "clip the wrist orientation targets into the wrist joints' ranges",
+    "trunk_clearance": "keep the robot hands at the wrist targets off its trunk (waist at rest) by the safety distance",
 }
 #: Every retarget switch ``mimic eval`` takes as ``--[no-]<field>`` (RetargetConfig field -> flag help).
 RETARGET_SWITCHES = {
@@ -261,7 +262,7 @@ def _adjustment_summary(clips: list[dict]) -> dict:
     if not rows:
         return {}
     out = {}
-    for key in ("elbow_cm", "wrist_rot_deg"):
+    for key in ("wrist_cm", "elbow_cm", "wrist_rot_deg"):
         w = [r["arm_frames"] for r in rows]
         out[key] = {
             "mean": float(sum(r[key]["mean"] * n for r, n in zip(rows, w, strict=True)) / sum(w)),

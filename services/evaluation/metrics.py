@@ -28,17 +28,18 @@ def _stats(v: np.ndarray) -> dict:
 
 
 def target_adjustment(plain: list, published: list) -> dict:
-    """How far the published targets moved from the plain retargeted ones (``consistent_targets``).
+    """How far the published targets moved from the plain retargeted ones (``consistent_targets``,
+    ``wrist_range``, ``trunk_clearance``).
 
     Args:
         plain, published: TaskTargets of the same clip frames without and with the option (same seqs).
 
     Returns:
-        ``elbow_cm`` and ``wrist_rot_deg``: mean / p99 / max over the frames and arms whose wrist and
-        elbow are valid in both; ``arm_frames`` compared (frames x arms).
+        ``wrist_cm``, ``elbow_cm`` and ``wrist_rot_deg``: mean / p99 / max over the frames and arms whose wrist
+        and elbow are valid in both; ``arm_frames`` compared (frames x arms).
     """
     by_seq = {tt.hdr.seq: tt for tt in plain}
-    elbow, rot = [], []
+    wrist, elbow, rot = [], [], []
     for tt in published:
         ref = by_seq.get(tt.hdr.seq)
         if ref is None:
@@ -48,9 +49,15 @@ def target_adjustment(plain: list, published: list) -> dict:
             ea, eb = tt.targets[e], ref.targets[e]
             if not (a.valid and b.valid and ea.valid and eb.valid):
                 continue
+            wrist.append(100.0 * float(np.linalg.norm(a.p - b.p)))
             elbow.append(100.0 * float(np.linalg.norm(ea.p - eb.p)))
             rot.append(np.degrees(np.linalg.norm(pin.log3(quat_to_matrix(a.q) @ quat_to_matrix(b.q).T))))
-    return {"elbow_cm": _stats(np.array(elbow)), "wrist_rot_deg": _stats(np.array(rot)), "arm_frames": len(elbow)}
+    return {
+        "wrist_cm": _stats(np.array(wrist)),
+        "elbow_cm": _stats(np.array(elbow)),
+        "wrist_rot_deg": _stats(np.array(rot)),
+        "arm_frames": len(elbow),
+    }
 
 
 def operator_errors(trace: Trace, plain: list) -> dict:

@@ -11,11 +11,14 @@ Per frame and per target (both wrists and elbows):
    ``use_rotation=False`` unless configured;
 3. with ``wrist_range``, each wrist orientation is clipped into the wrist joints' ranges relative to the
    forearm its elbow and wrist targets imply (:mod:`.wrist_range`);
-4. with ``consistent_targets``, per arm the elbow position and the wrist orientation become those
+4. with ``trunk_clearance``, each wrist target that would put the robot hand within the collision safety
+   distance of its trunk (waist at rest) is pushed out to it, and its swivel elbow placed again
+   (:mod:`.trunk`);
+5. with ``consistent_targets``, per arm the elbow position and the wrist orientation become those
    of the arm posture that meets the wrist position and comes closest to both (:mod:`.consistent`);
-5. linear and angular velocities are finite differences with the previous frame,
+6. linear and angular velocities are finite differences with the previous frame,
    low-pass filtered (:mod:`.velocity`);
-6. a target whose bone is missing or invalid is published ``valid=False`` holding its
+7. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
 Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
@@ -50,6 +53,7 @@ from services.retarget.orientation import (
     calibration_orientations,
 )
 from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
+from services.retarget.trunk import TrunkClearance
 from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
@@ -147,6 +151,12 @@ class RetargetConfig:
             default: at 30 fps the arms cross the blend's band within one frame, so it hardly lowers the step at
             the switch frames (byebye_happy 14.1 -> 13.2 deg), and on by default it moved the vigorous clips'
             targets enough that the numpy reference HQP dropped a level once (``test_degenerate_levels``).
+        trunk_clearance: keep every wrist target's robot hand (posed at the target) outside the robot's trunk at
+            the waist's rest posture by the profile's collision safety distance plus 5 mm, pushed out from the
+            trunk link's axis (the surface normal on the torso's front; :mod:`.trunk`); the swivel elbow is then
+            placed for the pushed wrist. Without it a hand resting on the operator's belly is inside the G1's
+            thicker trunk, and a strict HQP with self-collision avoidance reaches it by turning the waist
+            (call_normal_001: yaw -40 deg). See the retarget README for the measurement.
     """
 
     mode: str = MODES[0]
@@ -172,6 +182,7 @@ class RetargetConfig:
     consistent_targets: bool = False
     wrist_range: bool = False
     forearm_blend: bool = False
+    trunk_clearance: bool = False
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -255,6 +266,12 @@ class Retargeter(FrameIntake):
             {s: WristRange(self.robot, s, self.arms[s].centre) for s in self.arms}
             if self.config.wrist_range and self.config.elbow_placement == "swivel"
             else {}
+        )
+        #: the push of wrist targets out of the trunk (``trunk_clearance``)
+        self.trunk: TrunkClearance | None = (
+            TrunkClearance(self.robot, {s: prof.frames[wrist_of(s)] for s in SIDES})
+            if self.config.trunk_clearance
+            else None
         )
         #: side -> rows of its wrist and elbow in the per-frame target arrays (``TARGET_NAMES`` order)
         self._arm_rows = {s: (TARGET_NAMES.index(wrist_of(s)), TARGET_NAMES.index(elbow_of(s))) for s in SIDES}
@@ -594,6 +611,26 @@ class Retargeter(FrameIntake):
             if self._use_rotation[ie]:
                 R[ie] = elbow_R
 
+    def _clear_trunk(
+        self, frame: HumanFrame, P: np.ndarray, R: np.ndarray, H: np.ndarray, valid: list[bool], mapped
+    ) -> None:
+        """Per arm with a valid wrist: the wrist row of ``P`` (4, 3) [m] pushed out of the trunk with its hand at
+        ``R``'s wrist row (:class:`.trunk.TrunkClearance`), in place, and the elbow row placed again for it (the
+        swivel elbow hangs at the forearm length from the wrist). The wrist orientation stays as mapped."""
+        for side in SIDES:
+            iw, ie = self._arm_rows[side]
+            if not valid[iw]:
+                continue
+            p = self.trunk(side, P[iw], R[iw])
+            if p is P[iw]:
+                continue
+            P[iw] = p
+            self.counts[f"trunk_cleared_{side}"] += 1
+            if valid[ie]:
+                self._placed.pop(side, None)
+                box = None if mapped is None else (mapped[0][ie], mapped[1][ie])
+                P[ie] = self._position(TARGET_NAMES[ie], frame, H[ie], box, {wrist_of(side): p})
+
     def _targets(self, frame: HumanFrame, dt: float | None) -> dict[str, Target]:
         """All targets of one frame (wrists first: the swivel elbows need them).
 
@@ -646,6 +683,8 @@ class Retargeter(FrameIntake):
             for i in range(n):
                 if not valid[i]:
                     R[i] = self._held_R[i]
+        if self.trunk is not None:
+            self._clear_trunk(frame, P, R, H, valid, mapped)
         for side, wr in self.wrist_ranges.items():
             iw, ie = self._arm_rows[side]
             if valid[iw] and valid[ie]:  # (the forearm needs both; wrist-only arms are published as mapped)

@@ -123,6 +123,18 @@ def add_proxy_geom(mjspec: mujoco.MjSpec, body: str, proxy: LinkProxy) -> str:
     return geom.name
 
 
+def witness_normal(dist: float, p1: np.ndarray, p2: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """(3,) unit direction along which the signed distance ``dist`` [m] of two geoms grows, from the first to the
+    second, from ``mj_geomDistance``'s witness points p1, p2 (3,) [m]; touching exactly (no direction): along
+    the line between the geoms' centres c1, c2 (3,) [m]."""
+    v = p2 - p1
+    nv = float(np.sqrt(v @ v))
+    if nv > DEGENERATE and abs(dist) > DEGENERATE:
+        return v * (np.sign(dist) / nv)  # p2 - p1 = d n: it points back when they overlap
+    c = c2 - c1
+    return c / max(float(np.sqrt(c @ c)), DEGENERATE)
+
+
 def proxy_contacts(
     model: mujoco.MjModel, data: mujoco.MjData
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[list[int]]]:
@@ -147,13 +159,7 @@ def proxy_contacts(
     for i, (g1, g2) in enumerate(pairs):
         dist[i] = mujoco.mj_geomDistance(model, data, g1, g2, margin + 0.01, ft)
         p1[i], p2[i] = ft[:3], ft[3:]
-        v = ft[3:] - ft[:3]
-        nv = float(np.sqrt(v @ v))
-        if nv > DEGENERATE and abs(dist[i]) > DEGENERATE:
-            normal[i] = v * (np.sign(dist[i]) / nv)  # p2 - p1 = d n: it points back when they overlap
-        else:  # touching exactly: along the line between the geoms' centres
-            c = data.geom_xpos[g2] - data.geom_xpos[g1]
-            normal[i] = c / max(float(np.sqrt(c @ c)), DEGENERATE)
+        normal[i] = witness_normal(dist[i], ft[:3], ft[3:], data.geom_xpos[g1], data.geom_xpos[g2])
     order = np.argsort(dist, kind="stable")
     order = order[dist[order] < margin] if k else order  # the narrow phase's margin is a little generous
     bodies = model.geom_bodyid[np.array(list(pairs), dtype=int).reshape(-1, 2)[order]].tolist()

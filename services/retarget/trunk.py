@@ -1,0 +1,168 @@
+"""Wrist targets kept outside the robot's trunk (``RetargetConfig.trunk_clearance``; issue 12 item 4).
+
+The operator's hands may rest on their belly or thighs, where the robot's trunk is thicker: mapped as they
+are, such wrist targets put the robot's hand inside (or within the solver's safety distance of) its own
+trunk. The solver's self-collision dampers then keep the hand out, and a strict HQP meets its wrist level
+anyway by turning the waist: the waist moves the trunk and both arms rigidly, so it changes no arm-trunk
+distance, but it carries the trunk away from a target fixed in the pelvis frame (call_normal_001: waist yaw
+-40 deg, the elbow 14 cm off). A target inside the trunk is published on its surface instead:
+
+    p' = p + t u,   t >= 0 such that d(p') = c   (where d(p) < c),
+
+with ``d`` the signed distance [m] between the robot hand, posed at the target (the wrist frame's link proxy,
+hand included), and the nearest trunk link at the waist's rest posture, and ``c`` the clearance (the
+profile's collision safety distance plus :data:`PAD`). Distances are MuJoCo's ``mj_geomDistance`` on the
+solver's link proxies (:mod:`services.solver.collision`: convex polytopes holding each link's mesh),
+penetration included. The exit direction ``u`` runs from the nearest point of the link's central axis (its
+proxy's longest principal axis, within its extent) through the hand's centre: for a hand beside the torso
+that is the surface normal, and it moves continuously with the target, so a target sliding into the body
+slides along its surface, and one past the link's middle still leaves by the near side. (The distance's
+own gradient was tried first: where the hand overlaps a link it is a face normal of the polytopes, which
+jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t`` is found by Newton steps.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from services.solver.collision import SelfCollisionAvoidance, add_proxy_geom, witness_normal
+from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import matrix_to_quat
+
+#: Clearance [m] beyond the collision safety distance: a target exactly at the safety distance would hold the
+#: solver's damper at its stop.
+PAD = 0.005
+#: Exit rays per target: the nearest link's, then the other links checked again (a hand between two links).
+ITERATIONS = 3
+#: Lower bound of the cosine between the exit ray and the distance's gradient (a Newton step is the distance
+#: still to go over it).
+EXIT_COS = 0.3
+#: Newton steps along one exit ray, and the distance tolerance [m] that ends them.
+NEWTON_STEPS = 6
+TOL = 2e-4
+#: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind).
+LOOKOUT = 0.05
+
+
+class TrunkClearance:
+    """Pushes wrist targets (robot base frame) out of the robot's trunk, held at the waist's rest posture.
+
+    Args:
+        robot: the retargeter's model (arms only: the waist at rest). Its profile's ``[collision]`` table
+            gives the trunk (the links paired with the wrist link's group that no arm joint moves) and the
+            safety distance.
+        wrist_frames: side -> the wrist target's link (profile ``[frames]``).
+
+    Raises:
+        ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy.
+    """
+
+    def __init__(self, robot: RobotModel, wrist_frames: dict[str, str]):
+        sca = SelfCollisionAvoidance(robot)
+        sca.set_q(robot.q_rest)
+        m, d = sca.model, sca.data
+        arm_bodies = {m.jnt_bodyid[m.joint(j).id] for j in robot.joint_names}
+
+        def moved_by_arm(body: int) -> bool:
+            while body > 0:
+                if body in arm_bodies:
+                    return True
+                body = m.body_parentid[body]
+            return False
+
+        spec = robot.profile.collision
+        pairs = sca.link_pairs
+        trunk: set[str] = set()
+        for link in wrist_frames.values():
+            if link not in sca.links:
+                raise ValueError(f"wrist link {link!r} has no collision proxy ([collision] groups)")
+            i = sca.links.index(link)
+            for a, b in pairs:
+                other = sca.links[b] if a == i else sca.links[a] if b == i else None
+                if other is not None and not moved_by_arm(m.body(other).id):
+                    trunk.add(other)
+        if not trunk:
+            raise ValueError("no trunk link is paired with the wrists in [collision]")
+        #: the trunk links (sorted)
+        self.trunk = sorted(trunk)
+        #: [m] the clearance kept between the hand and the trunk
+        self.clearance = spec.safety_distance + PAD
+        ms = mujoco.MjSpec()
+        for link in self.trunk:  # fixed where the rest posture puts them (pelvis = world)
+            b = ms.worldbody.add_body()
+            b.name = link
+            bid = m.body(link).id
+            b.pos, b.quat = d.xpos[bid], matrix_to_quat(d.xmat[bid].reshape(3, 3))
+            add_proxy_geom(ms, link, sca.proxies[link])
+        for side, link in wrist_frames.items():
+            b = ms.worldbody.add_body()
+            b.name, b.mocap = f"hand:{side}", True
+            add_proxy_geom(ms, b.name, sca.proxies[link])
+        self.model = ms.compile()
+        self.data = mujoco.MjData(self.model)
+        self._trunk_geoms = [self.model.geom(f"polytope:{n}").id for n in self.trunk]
+        #: trunk geom -> (centre (3,) [m], unit axis (3,), lo, hi [m]): the segment of its proxy's longest principal
+        #: axis within its extent (base frame), where the exit rays start
+        self._axes = {}
+        for link, g in zip(self.trunk, self._trunk_geoms, strict=True):
+            bid = m.body(link).id
+            verts = d.xpos[bid] + sca.proxies[link].vertices() @ d.xmat[bid].reshape(3, 3).T
+            centre = verts.mean(axis=0)
+            axis = np.linalg.svd(verts - centre, full_matrices=False)[2][0]
+            along = (verts - centre) @ axis
+            self._axes[g] = (centre, axis, float(along.min()), float(along.max()))
+        #: side -> (hand geom id, mocap index)
+        self._hand = {
+            s: (self.model.geom(f"polytope:hand:{s}").id, int(self.model.body(f"hand:{s}").mocapid[0]))
+            for s in wrist_frames
+        }
+        self._fromto = np.zeros(6)
+
+    def nearest(self, side: str, p: np.ndarray, R: np.ndarray) -> tuple[float, np.ndarray, int]:
+        """The hand of ``side`` posed at p (3,) [m], R (3, 3) (base frame): its signed distance [m] to the nearest
+        trunk link (capped at clearance + LOOKOUT), the unit direction (3,) along which it grows and that link's
+        geom (-1: none within the cap)."""
+        g_hand, mocap = self._hand[side]
+        self.data.mocap_pos[mocap] = p
+        self.data.mocap_quat[mocap] = matrix_to_quat(R)
+        mujoco.mj_kinematics(self.model, self.data)
+        cap = self.clearance + LOOKOUT
+        best, normal, geom = cap, np.zeros(3), -1
+        for g in self._trunk_geoms:
+            dist = mujoco.mj_geomDistance(self.model, self.data, g, g_hand, cap, self._fromto)
+            if dist < best:
+                best, geom = dist, g
+                normal = witness_normal(
+                    dist, self._fromto[:3], self._fromto[3:], self.data.geom_xpos[g], self.data.geom_xpos[g_hand]
+                )
+        return float(best), normal, geom
+
+    def _exit_ray(self, g: int, g_hand: int) -> np.ndarray:
+        """(3,) unit direction out of trunk link geom ``g`` for the hand (kinematics done): from the nearest point
+        of the link's central axis segment through the hand's centre."""
+        centre, axis, lo, hi = self._axes[g]
+        h = self.data.geom_xpos[g_hand]
+        u = h - (centre + axis * np.clip((h - centre) @ axis, lo, hi))
+        norm = float(np.linalg.norm(u))
+        if norm > 1e-9:
+            return u / norm
+        forward = np.array([1.0, 0.0, 0.0]) - axis[0] * axis  # on the axis itself: out of the front
+        return forward / np.linalg.norm(forward)
+
+    def __call__(self, side: str, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance`` off the trunk;
+        ``p`` itself (the same object) when it already is."""
+        out = p
+        g_hand = self._hand[side][0]
+        for _ in range(ITERATIONS):
+            dist, n, g = self.nearest(side, out, R)
+            if dist >= self.clearance - TOL:
+                break
+            u = self._exit_ray(g, g_hand)
+            for _ in range(NEWTON_STEPS):  # d(out + t u) = clearance, Newton in t (d grows by u.n per metre)
+                out = out + u * ((self.clearance - dist) / max(float(u @ n), EXIT_COS))
+                dist, n, g2 = self.nearest(side, out, R)
+                if g2 == g and abs(dist - self.clearance) < TOL:
+                    break
+        return out

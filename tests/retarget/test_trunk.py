@@ -1,0 +1,114 @@
+"""Wrist targets kept off the robot's trunk (``RetargetConfig.trunk_clearance``, ``services/retarget/trunk.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.evaluation.runner import clip_targets
+from services.ingest import load_clip
+from services.retarget.retargeter import RetargetConfig, Retargeter
+from services.retarget.trunk import TrunkClearance
+from shared.rotations import quat_to_matrix
+
+#: Distance tolerance [m] of the pushed hand against the clearance (the Newton steps stop within 0.2 mm).
+TOL = 5e-4
+
+
+@pytest.fixture(scope="module")
+def trunk(robot14):
+    return TrunkClearance(robot14, {s: robot14.profile.frames[f"{s}_wrist"] for s in ("left", "right")})
+
+
+@pytest.fixture(scope="module")
+def hand_down(robot14):
+    """The left wrist target's orientation at the rest pose (3, 3): the hand hanging, pointing forward-down."""
+    return robot14.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][1]
+
+
+def _front(trunk: TrunkClearance, R: np.ndarray, depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """A left wrist target (3,) [m] straight in front of the torso's axis at belly height, whose hand lies
+    ``depth`` [m] inside the torso's front (negative: outside), and the torso's outward normal there (3,)."""
+    g = trunk.model.geom("polytope:torso_link").id
+    centre, axis, _, _ = trunk._axes[g]
+    normal = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
+    normal /= np.linalg.norm(normal)
+    far = centre + 0.4 * normal  # hand clear of everything
+    d_far = trunk.nearest("left", far, R)[0]
+    assert d_far > trunk.clearance  # (the lookout caps it; walk in until it is measured)
+    p = far.copy()
+    for _ in range(50):
+        d, _, _ = trunk.nearest("left", p, R)
+        if d < trunk.clearance:
+            break
+        p = p - 0.01 * normal
+    # the torso's front is flat there: the distance falls 1:1 along the normal
+    return p - normal * (d + depth), normal
+
+
+def test_a_target_inside_the_trunk_maps_to_the_surface_along_the_normal(trunk, hand_down):
+    """The hand 3 cm inside the torso's front: published at the clearance, moved along the front's normal."""
+    p, normal = _front(trunk, hand_down, depth=0.03)
+    assert trunk.nearest("left", p, hand_down)[0] < -0.02
+    out = trunk("left", p, hand_down)
+    assert abs(trunk.nearest("left", out, hand_down)[0] - trunk.clearance) < TOL
+    move = out - p
+    assert np.linalg.norm(move) == pytest.approx(0.03 + trunk.clearance, abs=2e-3)
+    assert move @ normal / np.linalg.norm(move) > 0.99
+
+
+def test_a_target_clear_of_the_trunk_is_unchanged(trunk, hand_down):
+    p, _ = _front(trunk, hand_down, depth=-0.05)
+    assert trunk("left", p, hand_down) is p
+
+
+def test_a_target_sliding_into_the_trunk_does_not_jump(trunk, hand_down):
+    """From 5 cm outside to 8 cm inside in 1 mm steps: the published target moves by at most the step."""
+    p0, normal = _front(trunk, hand_down, depth=-0.05)
+    slide = np.array([0.0, 0.3, -1.0])  # diagonally in, along the front and down
+    slide -= (slide @ normal) * normal
+    slide /= np.linalg.norm(slide)
+    outs = []
+    for k in range(131):
+        p = p0 - normal * (0.001 * k) + slide * (0.0003 * k)
+        outs.append(trunk("left", p, hand_down))
+    steps = np.linalg.norm(np.diff(outs, axis=0), axis=1)
+    assert steps.max() < 0.0015
+    for o in outs:
+        assert trunk.nearest("left", o, hand_down)[0] > trunk.clearance - TOL
+
+
+def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk):
+    """call_normal_001: the operator's left hand rests on the belly, and its plain wrist targets put the robot
+    hand inside the trunk (at the waist's rest); with trunk_clearance every published hand keeps the clearance,
+    the targets move continuously, and the velocities are differences of the published positions."""
+    path = next(p for p in bvh_clips if "call_normal_001" in p.name)
+    clip = load_clip(path)
+    out = {}
+    for on in (False, True):
+        ret = Retargeter(RetargetConfig(trunk_clearance=on), workspace=workspace, robot=robot14)
+        out[on] = clip_targets(clip, ret)
+
+    def clearance(targets, side):
+        return np.array(
+            [
+                trunk.nearest(side, tt.targets[f"{side}_wrist"].p, quat_to_matrix(tt.targets[f"{side}_wrist"].q))[0]
+                for tt in targets
+            ]
+        )
+
+    assert clearance(out[False], "left").min() < 0.0
+    for side in ("left", "right"):
+        assert clearance(out[True], side).min() > trunk.clearance - TOL
+        plain = np.array([tt.targets[f"{side}_wrist"].p for tt in out[False]])
+        pushed = np.array([tt.targets[f"{side}_wrist"].p for tt in out[True]])
+        # no step of the published wrist beyond the operator's own largest one
+        assert (
+            np.linalg.norm(np.diff(pushed, axis=0), axis=1).max()
+            <= np.linalg.norm(np.diff(plain, axis=0), axis=1).max() * 1.05
+        )
+        # the elbow is placed again where (and only where) its wrist moved
+        moved = np.linalg.norm(pushed - plain, axis=1) > 0
+        elbows = [np.array([tt.targets[f"{side}_elbow"].p for tt in out[on]]) for on in (False, True)]
+        emoved = np.linalg.norm(elbows[1] - elbows[0], axis=1) > 0
+        assert moved.any() and np.array_equal(moved, emoved)
