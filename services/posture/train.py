@@ -102,6 +102,10 @@ class TrainConfig:
             a_t)||²`` on the normalised actions: the prediction may change from one tick to the next only as
             much as the label does (the closed loop's predicted elbow moved 1.6x as fast as the operator's,
             README session 10). 0: off (the default; no extra forward pass).
+        temporal_ticks: the pairs of that term are ticks this many recorded ticks apart (1: consecutive). The
+            rollouts hold each clip frame's label and orientation for the frame (33 ms, 1-2 ticks at 50 Hz)
+            while the wrist position moves on: a label's one-tick change is 0 or a whole frame's, and over
+            several ticks that quantisation is a smaller part of the change.
     """
 
     hidden: int = 128
@@ -123,6 +127,7 @@ class TrainConfig:
     encoder_layers: int = 2
     weight_decay: float = 0.0
     temporal_weight: float = 0.0
+    temporal_ticks: int = 1
 
 
 def _shift(nxt: np.ndarray, offset: int) -> np.ndarray:
@@ -261,7 +266,7 @@ def fit(
         if cfg.hand_only:
             T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
         if cfg.temporal_weight > 0.0:
-            nxt = torch.tensor(data.nxt[i], dtype=torch.long)
+            nxt = torch.tensor(_successor(data.nxt[i], cfg.temporal_ticks), dtype=torch.long)
         gen = torch.Generator().manual_seed(cfg.seed + i)
         rng = np.random.default_rng([cfg.seed, i])
         enc = _net(torch, STATE_DIM, cfg.hidden, A.shape[1], cfg.encoder_layers)
@@ -324,6 +329,14 @@ def fit(
             "curve": [[float(a), float(z)] for a, z in curve],
         }
     return weights, report
+
+
+def _successor(nxt: np.ndarray, k: int) -> np.ndarray:
+    """Rows (N,) ``k`` recorded ticks after each row along ``nxt`` (-1 where the rollout ends before)."""
+    out = nxt
+    for _ in range(k - 1):
+        out = np.where(out >= 0, nxt[out], -1)
+    return out
 
 
 def _temporal_loss(enc, S_n, A_n, idx, nxt):

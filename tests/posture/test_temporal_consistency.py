@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from services.posture.rollout import Rollout
-from services.posture.train import Dataset, from_rollouts
+from services.posture.train import Dataset, _successor, from_rollouts
 
 
 def _rollout(label_ok: np.ndarray, first: float) -> Rollout:
@@ -36,6 +36,10 @@ def test_successors_follow_ticks_of_one_rollout_through_gaps_mirroring_and_round
     np.testing.assert_array_equal(m.nxt[0], [1, -1, 3, -1, 5, -1, 7, 8, 9, 10, -1, 12, -1])
     np.testing.assert_array_equal(m.nxt[1][7:], [8, -1, 10, -1, 12, -1])
     assert Dataset(d.S, d.A, d.Z).add(d.S, d.A, d.Z, d.nxt).nxt is None  # order unknown stays unknown
+    # --temporal-ticks 2 and 3: two / three ticks on, within the rollout; the label gap breaks the chain
+    np.testing.assert_array_equal(_successor(d.nxt[1], 2), [2, 3, 4, -1, -1, -1, -1])
+    np.testing.assert_array_equal(_successor(d.nxt[1], 3), [3, 4, -1, -1, -1, -1, -1])
+    np.testing.assert_array_equal(_successor(d.nxt[0], 2), [-1] * 6)
 
 
 def test_temporal_term_is_the_change_of_the_prediction_minus_the_change_of_the_label():

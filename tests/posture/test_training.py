@@ -230,8 +230,8 @@ def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, 
     out, rep = tmp_path / "p.npz", tmp_path / "r.json"
     cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
            "--json", str(rep), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1", "--holdout-every", "2",
-           "--chunk-s", "1.5", "--temporal-weight", "5", "--augment-deg", "10", "--augment-pitch-deg", "0",
-           "--augment-reach", "0.05",
+           "--chunk-s", "1.5", "--temporal-weight", "5", "--temporal-ticks", "3", "--augment-deg", "10",
+           "--augment-pitch-deg", "0", "--augment-reach", "0.05",
            "--encoder-layers", "3", "--weight-decay", "0.01"]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -239,7 +239,8 @@ def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, 
     assert meta["network"]["encoder"] == [14, 8, 8, 8, 3]
     train = meta["train"]
     assert (train["augment_deg"], train["augment_pitch_deg"], train["augment_reach"]) == (10.0, 0.0, 0.05)
-    assert (train["encoder_layers"], train["weight_decay"], train["temporal_weight"]) == (3, 0.01, 5.0)
+    assert (train["encoder_layers"], train["weight_decay"]) == (3, 0.01)
+    assert (train["temporal_weight"], train["temporal_ticks"]) == (5.0, 3)
     # the turns move elbow labels: another action kind is refused before any work
     bad = subprocess.run([*cmd[:-10], "--augment-deg", "10", "--action-kind", "posture"], capture_output=True,
                          text=True, timeout=600)  # fmt: skip
