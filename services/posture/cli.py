@@ -57,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="elbow kind: the augmented copies' shoulder-wrist distance also scaled by 1 +- this "
                    "(the elbow kept on the circle that reaches the wrist; 0: off)")  # fmt: skip
     t.add_argument("--weight-decay", type=float, default=0.0, help="AdamW weight decay (0: plain Adam)")
+    t.add_argument("--temporal-weight", type=float, default=0.0,
+                   help="lambda of a loss term on consecutive ticks of a rollout: the prediction's change minus "
+                   "the label's change, squared (normalised actions; 0: off)")  # fmt: skip
+    t.add_argument("--temporal-ticks", type=int, default=1,
+                   help="the pairs of --temporal-weight: this many rollout ticks apart (1: consecutive)")  # fmt: skip
     t.add_argument("--gate-factor", type=float, default=TrainConfig.gate_factor,
                    help="gate threshold per arm = this x the 99th percentile of the training gaps |x_dv - p| "
                    "(chosen on validation clips, see TrainConfig)")  # fmt: skip
@@ -151,7 +156,8 @@ def _train(args: argparse.Namespace) -> int:
                        input_noise=args.input_noise, gate_factor=args.gate_factor,
                        unit_action=args.action_kind == "swivel", augment_deg=args.augment_deg,
                        augment_pitch_deg=args.augment_pitch_deg, augment_reach=args.augment_reach,
-                       encoder_layers=args.encoder_layers, weight_decay=args.weight_decay)  # fmt: skip
+                       encoder_layers=args.encoder_layers, weight_decay=args.weight_decay,
+                       temporal_weight=args.temporal_weight, temporal_ticks=args.temporal_ticks)  # fmt: skip
     rcfg = RolloutConfig(rate=args.rate, action_kind=args.action_kind)
     if args.action_gain is not None:
         rcfg.action_gain = args.action_gain

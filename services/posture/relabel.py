@@ -140,7 +140,7 @@ def relabel_experiment(
     for r in range(1, cfg.rounds + 1):
         rolls = [rollout(arms, pieces[j], "policy", pol, rcfg) for j in range(ends[r - 1], ends[r])]
         D_E = from_rollouts(rolls, only="disagree", eps=cfg.eps)
-        D = D.add(D_E.S, D_E.A, D_E.Z)
+        D = D.add(D_E.S, D_E.A, D_E.Z, D_E.nxt)
         w, rep, pol = train_policy(D, f"relabel round {r}")
         rows.append({"round": r, "demo_s": float(dur[: ends[r]].sum()), "samples": len(D), "added": len(D_E),
                      **score(arms, pol, test, rcfg)})  # fmt: skip

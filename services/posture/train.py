@@ -97,6 +97,17 @@ class TrainConfig:
             validation split against 2.188 for 2).
         weight_decay: AdamW's decoupled weight decay on both networks (0: plain Adam; 0.01 and 0.3 measured
             2.175 and 2.256 cm on the validation split).
+        temporal_weight: λ of a temporal-consistency term added to eq. (7): over pairs of consecutive recorded
+            ticks of the same rollout and arm (``Dataset.nxt``), ``λ · mean ||(π(s_t+1) - π(s_t)) - (a_t+1 -
+            a_t)||²`` on the normalised actions: the prediction may change from one tick to the next only as
+            much as the label does (the closed loop's predicted elbow moved 1.6x as fast as the operator's,
+            README session 10). 0: off (the default; no extra forward pass). Off by default: on the validation
+            split (README, session 10) LAMBDA 10 / 100 / 1000 gave 2.021 / 2.086 / 2.661 cm of elbow against 2.077,
+            and the best with ``temporal_ticks`` 2.016; it slows the prediction but makes it less accurate.
+        temporal_ticks: the pairs of that term are ticks this many recorded ticks apart (1: consecutive). The
+            rollouts hold each clip frame's label and orientation for the frame (33 ms, 1-2 ticks at 50 Hz)
+            while the wrist position moves on: a label's one-tick change is 0 or a whole frame's, and over
+            several ticks that quantisation is a smaller part of the change.
     """
 
     hidden: int = 128
@@ -117,27 +128,42 @@ class TrainConfig:
     augment_reach: float = 0.0
     encoder_layers: int = 2
     weight_decay: float = 0.0
+    temporal_weight: float = 0.0
+    temporal_ticks: int = 1
+
+
+def _shift(nxt: np.ndarray, offset: int) -> np.ndarray:
+    """Successor indices (N,) moved by ``offset`` rows; -1 (no successor) stays -1."""
+    return np.where(nxt >= 0, nxt + offset, -1)
 
 
 @dataclass
 class Dataset:
-    """Per arm side: states (N, 14), expert actions (N, A), operator arm states (N, 6)."""
+    """Per arm side: states (N, 14), expert actions (N, A), operator arm states (N, 6).
+
+    ``nxt`` (optional): per side, (N,) int, the row of the same arm's next recorded tick of the same rollout,
+    -1 where there is none (the rollout's last tick, or a successor without a label); None: order unknown.
+    """
 
     S: list[np.ndarray]
     A: list[np.ndarray]
     Z: list[np.ndarray]
+    nxt: list[np.ndarray] | None = None
 
     @classmethod
     def empty(cls, action_dim: int = ACTION_DIM) -> Dataset:
-        return cls([np.zeros((0, STATE_DIM))] * 2, [np.zeros((0, action_dim))] * 2, [np.zeros((0, ARM_STATE_DIM))] * 2)
+        return cls([np.zeros((0, STATE_DIM))] * 2, [np.zeros((0, action_dim))] * 2, [np.zeros((0, ARM_STATE_DIM))] * 2,
+                   [np.zeros(0, dtype=int)] * 2)  # fmt: skip
 
     def __len__(self) -> int:
         return sum(len(s) for s in self.S)
 
-    def add(self, S, A, Z) -> Dataset:
-        """A new dataset with per-side arrays appended (D ← D ∪ D_E)."""
+    def add(self, S, A, Z, nxt=None) -> Dataset:
+        """A new dataset with per-side arrays appended (D ← D ∪ D_E); successors kept if both sides have them."""
+        both = self.nxt is not None and nxt is not None
+        N = [np.r_[self.nxt[i], _shift(nxt[i], len(self.S[i]))] for i in range(2)] if both else None
         return Dataset([np.r_[self.S[i], S[i]] for i in range(2)], [np.r_[self.A[i], A[i]] for i in range(2)],
-                       [np.r_[self.Z[i], Z[i]] for i in range(2)])  # fmt: skip
+                       [np.r_[self.Z[i], Z[i]] for i in range(2)], N)  # fmt: skip
 
     def with_mirror(self, sign: np.ndarray, kind: str = "posture") -> Dataset:
         """Each arm's samples plus the other arm's reflected onto it (twice the data per arm).
@@ -150,7 +176,10 @@ class Dataset:
         S = [np.r_[self.S[i], mirror_state(self.S[1 - i], sign)] for i in range(2)]
         A = [np.r_[self.A[i], mirror_action(self.A[1 - i], sign, kind)] for i in range(2)]
         Z = [np.r_[self.Z[i], mirror_arm_state(self.Z[1 - i])] for i in range(2)]
-        return Dataset(S, A, Z)
+        nxt = None
+        if self.nxt is not None:  # a reflected rollout keeps its tick order
+            nxt = [np.r_[self.nxt[i], _shift(self.nxt[1 - i], len(self.S[i]))] for i in range(2)]
+        return Dataset(S, A, Z, nxt)
 
 
 def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
@@ -160,7 +189,8 @@ def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
         only: "all" keeps every labelled tick; "disagree" keeps ticks whose policy action differs from
             the expert's by ``||a - â||² >= eps`` (Algorithm 1, line 6).
     """
-    S, A, Z = [[], []], [[], []], [[], []]
+    S, A, Z, nxt = [[], []], [[], []], [[], []], [[], []]
+    rows = [0, 0]
     rollouts = list(rollouts)
     n_act = rollouts[0].A.shape[-1] if rollouts else ACTION_DIM
     for r in rollouts:
@@ -173,8 +203,14 @@ def from_rollouts(rollouts, only: str = "all", eps: float = 0.0) -> Dataset:
             S[i].append(r.S[m, i])
             A[i].append(r.A[m, i])
             Z[i].append(r.Z[m, i])
+            # row of each kept tick; a kept tick's successor is the next tick if that one is kept too
+            row = rows[i] + np.cumsum(m) - 1
+            nxt[i].append(np.where(np.r_[m[1:], False], np.r_[row[1:], -1], -1)[m])
+            rows[i] += int(m.sum())
     cat = [lambda x, d=d: np.concatenate(x) if x else np.zeros((0, d)) for d in (STATE_DIM, n_act, ARM_STATE_DIM)]
-    return Dataset([cat[0](S[i]) for i in range(2)], [cat[1](A[i]) for i in range(2)], [cat[2](Z[i]) for i in range(2)])
+    N = [np.concatenate(nxt[i]).astype(int) if nxt[i] else np.zeros(0, dtype=int) for i in range(2)]
+    return Dataset([cat[0](S[i]) for i in range(2)], [cat[1](A[i]) for i in range(2)],
+                   [cat[2](Z[i]) for i in range(2)], N)  # fmt: skip
 
 
 def _net(torch, n_in: int, hidden: int, n_out: int, layers: int = 2):
@@ -207,6 +243,8 @@ def fit(
     augment = cfg.augment_deg > 0.0 or cfg.augment_reach > 0.0
     if augment and (frames is None or not cfg.hand_only):
         raise ValueError("augmenting needs the arms' shoulder centres and a hand-only encoder (elbow kind)")
+    if cfg.temporal_weight > 0.0 and data.nxt is None:
+        raise ValueError("the temporal-consistency term needs the samples' tick order (Dataset.nxt)")
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     weights: dict[str, np.ndarray] = {}
@@ -229,6 +267,8 @@ def fit(
         na_sd = torch.tensor(na[1], dtype=torch.float32)
         if cfg.hand_only:
             T["S"][:, HAND_INPUTS:] = 0.0  # normalised joints at their mean: no information
+        if cfg.temporal_weight > 0.0:
+            nxt = torch.tensor(_successor(data.nxt[i], cfg.temporal_ticks), dtype=torch.long)
         gen = torch.Generator().manual_seed(cfg.seed + i)
         rng = np.random.default_rng([cfg.seed, i])
         enc = _net(torch, STATE_DIM, cfg.hidden, A.shape[1], cfg.encoder_layers)
@@ -267,6 +307,8 @@ def fit(
                 d_in = (torch.cat([a, q_xd[idx]], dim=1) - nd_mu) / nd_sd
                 loss_z = ((dec(d_in) - T["Z"][idx]) ** 2).mean()
                 loss = loss_a + cfg.decoder_weight * loss_z
+                if cfg.temporal_weight > 0.0:
+                    loss = loss + cfg.temporal_weight * _temporal_loss(enc, T["S"], T["A"], idx, nxt)
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -289,6 +331,25 @@ def fit(
             "curve": [[float(a), float(z)] for a, z in curve],
         }
     return weights, report
+
+
+def _successor(nxt: np.ndarray, k: int) -> np.ndarray:
+    """Rows (N,) ``k`` recorded ticks after each row along ``nxt`` (-1 where the rollout ends before)."""
+    out = nxt
+    for _ in range(k - 1):
+        out = np.where(out >= 0, nxt[out], -1)
+    return out
+
+
+def _temporal_loss(enc, S_n, A_n, idx, nxt):
+    """Temporal-consistency term (``TrainConfig.temporal_weight``) of a minibatch: over its rows ``idx`` that
+    have a successor, ``mean ||(π(s_t+1) - π(s_t)) - (a_t+1 - a_t)||²`` (per action entry), on the clean
+    normalised states ``S_n`` (N, 14) and labels ``A_n`` (N, A); 0 if no row has one."""
+    t = idx[nxt[idx] >= 0]
+    if not len(t):
+        return S_n.new_zeros(())
+    u = nxt[t]
+    return (((enc(S_n[u]) - enc(S_n[t])) - (A_n[u] - A_n[t])) ** 2).mean()
 
 
 def _turned(S: np.ndarray, A: np.ndarray, arm: ArmFrame, rng: np.random.Generator, cfg: TrainConfig):

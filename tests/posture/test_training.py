@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch", reason="training needs the optional extra: 
 
 from services.posture.policy import PosturePolicy, _layers, mlp  # noqa: E402
 from services.posture.rollout import ArmsModel, RolloutConfig, prepare_clip, rollout  # noqa: E402
-from services.posture.train import TrainConfig, fit, from_rollouts  # noqa: E402
+from services.posture.train import Dataset, TrainConfig, fit, from_rollouts  # noqa: E402
 from shared.robot.pinocchio_model import build_robot_model  # noqa: E402
 from tests.posture.policy_files import policy_meta  # noqa: E402
 
@@ -65,6 +65,29 @@ def test_deeper_encoder_runs_on_the_real_time_path_and_weight_decay_shrinks_the_
     # the hidden layers (no normalisation folded in) are pulled toward zero
     norm = {n: np.linalg.norm(w["left.enc.W1"]) for n, w in (("plain", plain), ("decayed", decayed))}
     assert norm["decayed"] < 0.9 * norm["plain"], norm
+
+
+def test_temporal_term_brings_the_predictions_tick_to_tick_change_to_the_labels(smallest):
+    robot = build_robot_model(with_waist=False)
+    clip = prepare_clip(smallest[0], robot).slice(0, 60)
+    cfg = RolloutConfig(settle=0.5, action_kind="elbow")
+    data = from_rollouts([rollout(ArmsModel(robot), clip, "expert", None, cfg)])
+
+    def mismatch(w):  # mean over consecutive ticks and entries of ((π(s') - π(s)) - (a' - a))² [m²]
+        out = []
+        for i, side in enumerate(("left", "right")):
+            has = data.nxt[i] >= 0
+            pred = mlp(_layers(w, f"{side}.enc"), data.S[i])
+            dp = pred[data.nxt[i][has]] - pred[has]
+            out.append(((dp - (data.A[i][data.nxt[i][has]] - data.A[i][has])) ** 2).mean())
+        return float(np.mean(out))
+
+    plain, _ = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0, hand_only=True))
+    smooth, rep = fit(data, TrainConfig(hidden=16, epochs=30, batch=64, seed=0, hand_only=True, temporal_weight=100.0))
+    assert rep["config"]["temporal_weight"] == 100.0
+    assert mismatch(smooth) < 0.5 * mismatch(plain), (mismatch(smooth), mismatch(plain))
+    with pytest.raises(ValueError, match="tick order"):
+        fit(Dataset(data.S, data.A, data.Z), TrainConfig(hidden=16, epochs=1, temporal_weight=1.0))
 
 
 def test_gate_threshold_is_the_factor_times_the_p99_of_the_policys_own_gaps_on_the_training_states(demo):
@@ -207,7 +230,8 @@ def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, 
     out, rep = tmp_path / "p.npz", tmp_path / "r.json"
     cmd = [sys.executable, "-m", "services.cli", "posture", "train", *map(str, smallest), "--out", str(out),
            "--json", str(rep), "--epochs", "2", "--hidden", "8", "--relabel-rounds", "1", "--holdout-every", "2",
-           "--chunk-s", "1.5", "--augment-deg", "10", "--augment-pitch-deg", "0", "--augment-reach", "0.05",
+           "--chunk-s", "1.5", "--temporal-weight", "5", "--temporal-ticks", "3", "--augment-deg", "10",
+           "--augment-pitch-deg", "0", "--augment-reach", "0.05",
            "--encoder-layers", "3", "--weight-decay", "0.01"]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -216,6 +240,7 @@ def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, 
     train = meta["train"]
     assert (train["augment_deg"], train["augment_pitch_deg"], train["augment_reach"]) == (10.0, 0.0, 0.05)
     assert (train["encoder_layers"], train["weight_decay"]) == (3, 0.01)
+    assert (train["temporal_weight"], train["temporal_ticks"]) == (5.0, 3)
     # the turns move elbow labels: another action kind is refused before any work
     bad = subprocess.run([*cmd[:-10], "--augment-deg", "10", "--action-kind", "posture"], capture_output=True,
                          text=True, timeout=600)  # fmt: skip
