@@ -97,10 +97,12 @@ class SolverConfig:
         target_acceleration: extrapolate the target positions between frames along a parabola, with the
             acceleration between consecutive frames' velocities, instead of at constant velocity
             (``targets.TargetTracker``). Off: a trade. On the 25 clips (``mimic eval --target-acceleration on``,
-            h12w notes) the wrist mean falls on 22 clips (wave-both-hands 0.248 -> 0.083 cm, all clips 0.261 ->
-            0.184) and the wrist frame error with it (0.550 -> 0.348 cm), but the wrist rotation p99 rises on
-            raise-up-both-hands normal (9.3 -> 17.6 deg) and kick_normal, the elbow on guide_active (+12 %), and
-            raise-up-both-hands exhausted's arms take another branch overhead (elbow 0.65 -> 1.89 cm).
+            h12w and h12s notes) the wrist mean falls on 22 clips (wave-both-hands 0.248 -> 0.083 cm, all clips
+            0.236 -> 0.160) and the wrist frame error with it (0.535 -> 0.329 cm), but the wrist rotation p99 rises
+            on raise-up-both-hands normal (9.3 -> 17.6 deg), the elbow on guide_active (+12 %), and
+            raise-up-both-hands exhausted's arms take another branch overhead (elbow 0.65 -> 1.89 cm). The raw
+            solution carries these, not the smoother: they come from the headroom box it is solved in
+            (``RAW_VMAX_FRACTION``, ``RAW_AMAX_FRACTION``; with the full limits they go, but the smoother then lags).
         target_velocity_lag: the published velocity's lag behind its frame [frame intervals], with
             ``target_acceleration``: 0.5 for the retargeter's backward differences, 0 for a source that measures
             velocity.
