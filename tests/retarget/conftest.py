@@ -63,3 +63,17 @@ def workspace(robot14, tmp_path_factory):
             os.environ.pop("MIMIC_CACHE_DIR", None)
         else:
             os.environ["MIMIC_CACHE_DIR"] = old
+
+
+def targets_without_and_with(bvh_clips, name: str, workspace, robot14, option: str) -> dict[bool, list]:
+    """The published targets of the real clip whose name contains ``name``, retargeted with the boolean
+    ``RetargetConfig`` field ``option`` off (False) and on (True)."""
+    from services.evaluation.runner import clip_targets
+    from services.ingest import load_clip
+    from services.retarget.retargeter import RetargetConfig, Retargeter
+
+    clip = load_clip(next(p for p in bvh_clips if name in p.name))
+    return {
+        on: clip_targets(clip, Retargeter(RetargetConfig(**{option: on}), workspace=workspace, robot=robot14))
+        for on in (False, True)
+    }

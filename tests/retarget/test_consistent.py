@@ -5,12 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import make_frame
+from conftest import make_frame, targets_without_and_with
 
 from services.evaluation.reachability import ArmIk as CheckIk
 from services.evaluation.reachability import check_targets
-from services.evaluation.runner import clip_targets
-from services.ingest import load_clip
 from services.retarget.consistent import ConsistentArm
 from services.retarget.elbow import ArmGeometry
 from services.retarget.retargeter import RetargetConfig, Retargeter
@@ -113,12 +111,7 @@ def test_a_local_minimum_against_a_stop_is_left(robot14):
 def test_real_clip_pairs_become_reachable(bvh_clips, robot14, workspace):
     """guide_normal: a third of the mapped wrist + elbow pairs fail the evaluation's IK check; with
     consistent targets none do, and the wrist positions are the mapped ones."""
-    path = next(p for p in bvh_clips if "guide_normal" in p.name)
-    clip = load_clip(path)
-    out = {}
-    for on in (False, True):
-        ret = Retargeter(RetargetConfig(consistent_targets=on), workspace=workspace, robot=robot14)
-        out[on] = clip_targets(clip, ret)
+    out = targets_without_and_with(bvh_clips, "guide_normal", workspace, robot14, "consistent_targets")
     plain, pair = (check_targets(robot14, out[on]).fraction(pair=True) for on in (False, True))
     assert plain < 0.9 and pair == 1.0
     for a, b in zip(out[False], out[True], strict=True):

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import targets_without_and_with
 
-from services.evaluation.runner import clip_targets
-from services.ingest import load_clip
-from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.retarget.trunk import TrunkClearance
 from shared.rotations import quat_to_matrix
 
@@ -82,12 +80,7 @@ def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk
     """call_normal_001: the operator's left hand rests on the belly, and its plain wrist targets put the robot
     hand inside the trunk (at the waist's rest); with trunk_clearance every published hand keeps the clearance,
     the targets move continuously, and the velocities are differences of the published positions."""
-    path = next(p for p in bvh_clips if "call_normal_001" in p.name)
-    clip = load_clip(path)
-    out = {}
-    for on in (False, True):
-        ret = Retargeter(RetargetConfig(trunk_clearance=on), workspace=workspace, robot=robot14)
-        out[on] = clip_targets(clip, ret)
+    out = targets_without_and_with(bvh_clips, "call_normal_001", workspace, robot14, "trunk_clearance")
 
     def clearance(targets, side):
         return np.array(
