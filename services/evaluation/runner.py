@@ -40,6 +40,9 @@ from shared.targets import ELBOWS, TARGET_NAMES, WRISTS, side_of
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
+#: (3,) "no value" for a tick's missing position (read-only: shared by every row it fills).
+_NAN3 = np.full(3, np.nan)
+_NAN3.flags.writeable = False
 #: Sim ticks between two clearance measurements (mj_geomDistance over every pair costs ~ms).
 CLEARANCE_EVERY = 10
 
@@ -236,7 +239,7 @@ class _Recorder:
         for n in TARGET_NAMES:
             tg = msg.targets.get(n)
             self.frame_ok[n].append(tg is not None and tg.valid)
-            self.frame_p[n].append(tg.p if tg is not None else np.full(3, np.nan))
+            self.frame_p[n].append(tg.p if tg is not None else _NAN3)
 
     def tick(self, t: float, settle: float, dt: float, cmd) -> None:
         """Record the command of tick ``t`` [s] (clip time ``t - settle``)."""
@@ -247,7 +250,7 @@ class _Recorder:
             # the solver saw it (no newer frame). Sampling at t would add |v| dt of pure time shift.
             s = self.reference.sample(n, t + dt)
             self.ref_ok[n].append(s is not None and not s.held)
-            self.ref_p[n].append(s.p if s is not None else np.full(3, np.nan))
+            self.ref_p[n].append(s.p if s is not None else _NAN3)
             self.kin_p[n].append(poses[n][0])
             if n in self.ref_R:
                 self.ref_R[n].append(s.R if s is not None else np.eye(3))
@@ -258,7 +261,7 @@ class _Recorder:
         aimed = getattr(self.core, "policy_elbow", {})
         for n in ELBOWS:
             e = aimed.get(side_of(n))
-            self.policy_p[n].append(e[0] + dt * e[1] if e is not None else np.full(3, np.nan))
+            self.policy_p[n].append(e[0] + dt * e[1] if e is not None else _NAN3)
         if self.simcore is not None:
             for n, pose in self.simcore.frame_poses().items():
                 self.sim_p[n].append(pose.p)

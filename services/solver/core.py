@@ -200,21 +200,20 @@ class SolverConfig:
         saturation_tolerance: the traded wrist residual is at most ``1 +`` this times the strict optimum's (the
             wrist weight is raised until it is): the wrists keep moving towards a target they can reach. Without
             the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4 s.
-        self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at
-            every level (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one
-            ``mj_collision`` call when the links could have closed a 3 cm pad since the last one, rows only
-            for pairs within d_i that the step's box could break, so most gesture ticks keep the box-only QP);
-            off (``mimic solve --no-self-collision``), or a profile without the table, leaves only the joint
-            limits. **On by default since session 10.** 25 real clips with the MuJoCo sim (``mimic eval``,
-            solver README): arm self-collision steps in the sim 0 on every clip (off: 7201 over 8 clips, 149-2866 each),
-            min clearance >= 1.01 cm; errors unchanged except where the operator's hands rest on the body,
-            where the G1's thicker trunk is (bow_old elbow 0.06 -> 2.01 cm, call_normal_001 0.39 -> 2.73 cm: the
-            wrist level reaches the wrist by turning the torso away, solver README), and on the vigorous clips,
-            which improve. Cost: tick p50 0.10 -> 0.16 ms on
-            guide_normal, 0.28 ms on bow_old (arms near the body). Session 9 kept it off for a demo artefact
-            that is gone: the demo's box lift ended with the box held low and the stream jumped 13 cm to the
-            ellipse's hanging arms, and the damper steered that jump onto another branch (waist yaw 1.0 rad,
-            the elbow 0.7-1.0 cm off for 1.5 s); the demo motions now start and end at rest.
+        self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at every level
+            (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one ``mj_collision`` call when
+            the links could have closed a 3 cm pad since the last one, rows only for pairs within d_i that the
+            step's box could break, so most gesture ticks keep the box-only QP); off (``mimic solve
+            --no-self-collision``), or a profile without the table, leaves only the joint limits. **On by default
+            since session 10.** 25 real clips with the MuJoCo sim (``mimic eval``, solver README): arm
+            self-collision steps in the sim 0 on every clip (off: 7201 over 8 clips, 149-2866 each), min clearance
+            >= 1.01 cm; errors unchanged except where the operator's hands rest on the body, where the G1's thicker
+            trunk is (bow_old elbow 0.06 -> 2.01 cm, call_normal_001 0.39 -> 2.73 cm: the wrist level reaches the
+            wrist by turning the torso away, solver README), and on the vigorous clips, which improve. Cost: tick
+            p50 0.10 -> 0.16 ms on guide_normal, 0.28 ms on bow_old (arms near the body). Session 9 kept it off for
+            a demo artefact that is gone: the demo's box lift ended with the box held low and the stream jumped 13
+            cm to the ellipse's hanging arms, and the damper steered that jump onto another branch (waist yaw 1.0
+            rad, the elbow 0.7-1.0 cm off for 1.5 s); the demo motions now start and end at rest.
     """
 
     algo: str = "hqp-nullspace"
