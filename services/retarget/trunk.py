@@ -23,6 +23,8 @@ jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -156,7 +158,12 @@ class TrunkClearance:
         mujoco.mj_kinematics(self.model, self.data)
         cap = self.clearance + LOOKOUT
         best, normal, geom = cap, np.zeros(3), -1
+        xpos, rbound = self.data.geom_xpos, self.model.geom_rbound
+        hand, r_hand = xpos[g_hand], rbound[g_hand]
         for g in self._trunk_geoms:
+            c = xpos[g] - hand
+            if math.sqrt(c @ c) - r_hand - rbound[g] >= best:  # their bounding spheres are already farther apart
+                continue
             dist = mujoco.mj_geomDistance(self.model, self.data, g, g_hand, cap, self._fromto)
             if dist < best:
                 best, geom = dist, g
