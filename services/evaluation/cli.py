@@ -28,7 +28,7 @@ from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
 from services.solver.cli import add_self_collision_choice, self_collision_choice
-from services.solver.core import SolverConfig
+from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
@@ -145,6 +145,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="strict HQPs: trade a saturated wrist level against the lower levels at this weight (SolverConfig."
         "saturation_weight; default: SolverConfig's, 0 = off)",
+    )
+    p.add_argument(
+        "--saturation-trigger",
+        choices=SATURATION_TRIGGERS,
+        default=None,
+        help="with --saturation-weight: trade only ticks whose target velocity is out of the joints' speed reach "
+        "(feedforward) or every tick the wrist level misses (residual) (SolverConfig.saturation_trigger; "
+        "default: SolverConfig's)",
     )
     p.add_argument(
         "--recovery",
@@ -314,6 +322,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     saturation = getattr(args, "saturation_weight", None)
     if saturation is not None:
         solver["saturation_weight"] = saturation
+    trigger = getattr(args, "saturation_trigger", None)
+    if trigger is not None:
+        solver["saturation_trigger"] = trigger
     recovery = getattr(args, "recovery", None)
     if recovery is not None:
         solver["recovery"] = recovery == "on"
