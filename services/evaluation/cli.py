@@ -33,7 +33,7 @@ from services.solver.cli import (
     self_collision_choice,
     trunk_projection_choice,
 )
-from services.solver.core import SolverConfig
+from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
 
@@ -151,6 +151,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="strict HQPs: trade a saturated wrist level against the lower levels at this weight (SolverConfig."
         "saturation_weight; default: SolverConfig's, 0 = off)",
+    )
+    p.add_argument(
+        "--saturation-trigger",
+        choices=SATURATION_TRIGGERS,
+        default=None,
+        help="with --saturation-weight: trade only ticks whose target velocity is out of the joints' speed reach "
+        "(feedforward) or every tick the wrist level misses (residual) (SolverConfig.saturation_trigger; "
+        "default: SolverConfig's)",
     )
     p.add_argument(
         "--recovery",
@@ -320,6 +328,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     saturation = getattr(args, "saturation_weight", None)
     if saturation is not None:
         solver["saturation_weight"] = saturation
+    trigger = getattr(args, "saturation_trigger", None)
+    if trigger is not None:
+        solver["saturation_trigger"] = trigger
     recovery = getattr(args, "recovery", None)
     if recovery is not None:
         solver["recovery"] = recovery == "on"

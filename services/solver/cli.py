@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from services.solver.core import SolverConfig
+from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.qp import QP_BACKENDS
 from services.solver.registry import ALGORITHMS
 from shared.bus import add_bus_args
@@ -26,6 +26,7 @@ FLAGS = {
     "wrist_orientation_cost": {"flag": "--orientation-weight"},
     "wrist_orientation_level": {"choices": (1, 2, 3)},
     "posture_policy": {"metavar": "FILE"},
+    "saturation_trigger": {"choices": SATURATION_TRIGGERS},
 }
 
 

@@ -57,6 +57,9 @@ MOTOR_LIMITS_TASK_ACCELERATION = 10.0
 MOTOR_LIMITS_RESERVE = 0.2
 #: Algorithms with strict levels (a recovery level can sit between two of them).
 STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
+#: ``SolverConfig.saturation_trigger`` values: trade only where the target's own velocity is out of the joints' speed
+#: reach, or wherever the strict wrist level is missed.
+SATURATION_TRIGGERS = ("feedforward", "residual")
 #: Largest task gain per control tick (gain * dt): the discrete error dynamics stay well damped.
 MAX_GAIN_DT = 0.4
 #: Shortest step [s] a tick accounts for (ticks closer than this still move by it: 1e-4 s at vmax = 4e-4 rad).
@@ -97,13 +100,21 @@ class SolverConfig:
         target_horizon: longest target extrapolation [s]. target_timeout: stale after [s].
         target_acceleration: extrapolate the target positions between frames along a parabola, with the
             acceleration between consecutive frames' velocities, instead of at constant velocity
-            (``targets.TargetTracker``). Off: a trade. On the 25 clips (``mimic eval --target-acceleration on``,
-            h12w and h12s notes) the wrist mean falls on 22 clips (wave-both-hands 0.248 -> 0.083 cm, all clips
-            0.236 -> 0.160) and the wrist frame error with it (0.535 -> 0.329 cm), but the wrist rotation p99 rises
-            on raise-up-both-hands normal (9.3 -> 17.6 deg), the elbow on guide_active (+12 %), and
-            raise-up-both-hands exhausted's arms take another branch overhead (elbow 0.65 -> 1.89 cm). The raw
-            solution carries these, not the smoother: they come from the headroom box it is solved in
-            (``RAW_VMAX_FRACTION``, ``RAW_AMAX_FRACTION``; with the full limits they go, but the smoother then lags).
+            (``targets.TargetTracker``). **On by default since session 11** (``mimic solve
+            --no-target-acceleration`` turns it off). 25 clips, shipped settings otherwise (``mimic eval
+            --target-acceleration on|off --no-sim``, session 11 notes): the wrist mean falls on 22 clips
+            (wave-both-hands 0.248 -> 0.083 cm, all clips 0.236 -> 0.160 tick-weighted) and so does the wrist frame
+            error, which no prediction flatters (0.535 -> 0.329 cm); clips meeting wrist mean <= 0.1 cm 12 -> 19,
+            wrist p99 <= 1 cm 11 -> 17, HQP elbow <= WQP 12 -> 14, <= mink 7 -> 9. What it costs, on one motion:
+            raise-up-both-hands normal's wrist rotation p99 9 -> 18 deg (its first 0.3 s: the wrists start at
+            speed, level 1 takes the joint budget the orientations had), and raise-up-both-hands exhausted, whose
+            left shoulder passes a singular pose overhead (roll ~90 deg, pitch and yaw axes aligned) and leaves
+            it on the other branch (pitch ~10 deg and yaw ~90 deg against pitch -85 and yaw -20; wrist 0.097 ->
+            0.403 cm, elbow 0.65 -> 1.89; most of it in the clip's last 0.3 s, a drop faster than the arms from
+            that branch). Which branch it takes is a near tie: with the raw acceleration box at 0.9 of the limit
+            instead of 0.5 (``RAW_AMAX_FRACTION``) the option takes the first branch (wrist 0.027 cm), at 0.8 the
+            second; the wider box is no default (a blocked arm's command then leads the measured joints past
+            ``max_command_lead`` with the motor limits, and the smoother clamps bang-bang input).
         target_velocity_lag: the published velocity's lag behind its frame [frame intervals], with
             ``target_acceleration``: 0.5 for the retargeter's backward differences, 0 for a source that measures
             velocity.
@@ -198,6 +209,16 @@ class SolverConfig:
             (still below mink's), kick_normal's elbow 3.7 -> 5.4 cm, gesture wrists worse where they saturate
             (byebye_normal 0.10 -> 0.19 cm) and stuck_s above 0.1 s on 7 clips instead of 4: off until the
             gestures keep their figures (``services/solver/README.md``).
+        saturation_trigger: which unmet wrist ticks are traded (``saturation_weight`` > 0). ``"feedforward"``
+            (default): only those whose target velocity itself is beyond what the joints' speed limits give the
+            wrists at this posture (the operator moves faster than the arm can: runs, dashes, kicks);
+            ``"residual"``: every tick the strict wrist level misses. Why: with ``"residual"`` the trade also fired
+            on ticks the wrists miss only for want of acceleration or to close an error (the start-up move from
+            rest, the step a new frame brings), and those trades left a gesture's elbows on another posture
+            (raise-up-right-hand elbow 0.04 -> 0.36 cm with target acceleration on, 125 of its 240 trades in the
+            start-up move); with ``"feedforward"`` one gesture clip of 16 is traded at all (guide_active's flick),
+            against 8 made worse by ``"residual"`` (25 clips, ``mimic eval --no-sim``, solver README).
+            ``SolverCore._feedforward_met``.
         saturation_tolerance: the traded wrist residual is at most ``1 +`` this times the strict optimum's (the
             wrist weight is raised until it is): the wrists keep moving towards a target they can reach. Without
             the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4 s.
@@ -241,7 +262,7 @@ class SolverConfig:
     smoothing_ticks: int = 4
     target_horizon: float = 0.05
     target_timeout: float = 0.5
-    target_acceleration: bool = False
+    target_acceleration: bool = True
     target_velocity_lag: float = 0.5
     target_acceleration_memory: float = 10.0
     resync_threshold: float = 0.3
@@ -262,6 +283,7 @@ class SolverConfig:
     level1_reserve: float | None = None
     saturation_weight: float = 0.0
     saturation_tolerance: float = 0.6
+    saturation_trigger: str = "feedforward"
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     posture_blend_time: float = 0.3
@@ -298,6 +320,10 @@ class SolverConfig:
             raise ValueError(
                 f"saturation_weight and saturation_tolerance must be >= 0, got "
                 f"{self.saturation_weight}, {self.saturation_tolerance}"
+            )
+        if self.saturation_trigger not in SATURATION_TRIGGERS:
+            raise ValueError(
+                f"saturation_trigger must be one of {SATURATION_TRIGGERS}, got {self.saturation_trigger!r}"
             )
         if not 0.0 <= self.posture_blend_time <= 10.0:
             raise ValueError(f"posture_blend_time must be in [0, 10] s, got {self.posture_blend_time}")
@@ -771,6 +797,8 @@ class SolverCore:
             sol = self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
             if not sol.ok or not sol.residuals or sol.residuals[0] <= tol:
                 return sol
+            if self.config.saturation_trigger == "feedforward" and self._feedforward_met(As, levels):
+                return sol
             aim = self.saturation.wrist_velocity(LevelProblem(As, bs, lb, ub, ineq), sol.residuals[0])
             if aim is None:
                 return sol
@@ -782,6 +810,21 @@ class SolverCore:
         if not first.ok or first.residuals[0] <= tol:
             return self.algorithm.solve_problem(LevelProblem(As, bs, lb, ub, ineq, conf, levels))
         return self._solve_reaimed(As, bs, As[0] @ first.qd, lb, ub, ineq, levels)
+
+    def _feedforward_met(self, As: list[np.ndarray], levels: list) -> bool:
+        """True when the wrists' target velocities alone (``W v_ff``, no error term) can be met within the joints'
+        speed limits at this posture: the operator moves no faster than the arm can follow.
+
+        Why the speed box alone (``±`` the raw vmax, not this tick's box): the tick's box also holds the
+        acceleration band around the current velocity, which excludes even a zero demand while the arm is moving
+        (the start-up move from rest: a still target measured unmeetable there). Neither a lagging arm nor a
+        braking one is the operator outrunning the robot. The collision rows are left out too: a hand held off the
+        torso is not a speed limit. One level-1-only QP, on ticks the strict wrist level already missed.
+        """
+        b_ff = np.concatenate([t.cost * t.feedforward() for t in levels[0]])
+        vmax = self.bounds.vmax
+        sol = self.algorithm.solve_problem(LevelProblem(As[:1], [b_ff], -vmax, vmax, None))
+        return sol.ok and bool(sol.residuals) and sol.residuals[0] <= self.config.infeasible_tol
 
     def _solve_reaimed(
         self,

@@ -28,7 +28,7 @@ from scipy.linalg import lapack
 
 from services.solver.active_set import refine_on_active_set
 from services.solver.base import FEASIBLE_TOL, QP_BOUND_TOL, LevelProblem, Solution, clip, violation, within
-from services.solver.cascade import RETRY_EPS, RETRY_WIDEN, CascadeQp
+from services.solver.cascade import LAST_RETRY_WIDEN, RETRY_EPS, RETRY_WIDEN, CascadeQp
 from services.solver.inequalities import level_rows
 from services.solver.linalg import split_row_space
 from services.solver.qp import QpBackend
@@ -114,14 +114,15 @@ class HqpNullspace(CascadeQp):
             c = ws.c[:m]
             base = ws.base
             lo, hi = lb - base, ub - base
-            w, its, status = self._level_qp(M, c, Z, lo, hi, k, level_rows(ineq, Z, base, lo, hi))
+            w, its, status, widen = self._level_qp(M, c, Z, lo, hi, k, level_rows(ineq, Z, base, lo, hi))
             iters += its
             calls += 1
             if w is None:
                 reason = f"level 1 QP: {status}" if k == 0 else f"level {k + 1} QP {status}; kept levels 1-{k}"
                 return p.solution(ws.x.copy(), k != 0, iters, calls, reason)
             xt = base + (w if Z is None else Z @ w)
-            if not within(xt, lb, ub, QP_BOUND_TOL) or (ineq is not None and not ineq.satisfied(xt, QP_BOUND_TOL)):
+            tol = QP_BOUND_TOL + widen
+            if not within(xt, lb, ub, tol) or (ineq is not None and not ineq.satisfied(xt, tol)):
                 gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
                 return p.solution(ws.x.copy(), k != 0, iters, calls, f"level {k + 1} QP left the box by {gap:.2e}")
             ws.x[:] = clip(xt, lb, ub)
@@ -177,7 +178,7 @@ class HqpNullspace(CascadeQp):
                     xt = None
             if xt is None:
                 rows = level_rows(ineq, Z, base, lb - base, ub - base)
-                w, its, status = self._level_qp(M, c, Z, lb - base, ub - base, k, rows)
+                w, its, status, widen = self._level_qp(M, c, Z, lb - base, ub - base, k, rows)
                 iters += its
                 calls += 1
                 if w is None:
@@ -186,8 +187,9 @@ class HqpNullspace(CascadeQp):
                     reason = f"level {k + 1} QP {status}; kept levels 1-{k}"
                     break
                 xt = base + (w if Z is None else Z @ w)
-                # Within the QP's own tolerance: snap onto the box.
-                if not within(xt, lb, ub, QP_BOUND_TOL) or (ineq is not None and not ineq.satisfied(xt, QP_BOUND_TOL)):
+                # Within the QP's own tolerance (and the retry's widening): snap onto the box.
+                tol = QP_BOUND_TOL + widen
+                if not within(xt, lb, ub, tol) or (ineq is not None and not ineq.satisfied(xt, tol)):
                     gap = max(violation(xt, lb, ub), ineq.violation(xt) if ineq is not None else 0.0)
                     reason = f"level {k + 1} QP left the box by {gap:.2e}"
                     if k == 0:
@@ -209,12 +211,13 @@ class HqpNullspace(CascadeQp):
 
         A dual active-set solver can call a degenerate, nearly singular level infeasible; it is retried
         once with ``RETRY_EPS`` regularisation and refined on its active set, which removes that bias again.
-        When both fail, both are tried once more on the box (and rows) widened by ``RETRY_WIDEN``: a level whose
-        feasible set touches bounds the levels above sit on is otherwise lost to round-off. The caller clips
-        the result back onto the box. Only failed levels reach the retry, so every other tick is unchanged.
+        When both fail, both are tried once more on the box (and rows) widened by ``RETRY_WIDEN``, then by
+        ``LAST_RETRY_WIDEN``: a level whose feasible set touches bounds the levels above sit on is otherwise lost
+        to round-off. The caller accepts the result within that widening and clips it back onto the box. Only
+        failed levels reach the retries, so every other tick is unchanged.
 
         Returns:
-            (z or None, iterations, status text).
+            (z or None, iterations, status text, the widening [rad/s] of the box the answer was found in).
         """
         iters = 0
         status = ""
@@ -223,7 +226,8 @@ class HqpNullspace(CascadeQp):
         attempts = ((eps0, self.refine, 0.0), (max(RETRY_EPS, eps0), True, 0.0))
         MtM = M.T @ M
         f = -(M.T @ c)
-        for eps, refine, widen in (*attempts, *((e, r, RETRY_WIDEN) for e, r, _ in attempts)):
+        tiers = (*attempts, *((e, r, w) for w in (RETRY_WIDEN, LAST_RETRY_WIDEN) for e, r, _ in attempts))
+        for eps, refine, widen in tiers:
             lo_w, hi_w = (lo - widen, hi + widen) if widen else (lo, hi)
             gl_w, gu_w = (gl - widen, gu + widen) if widen and G is not None else (gl, gu)
             H = MtM.copy()
@@ -240,11 +244,11 @@ class HqpNullspace(CascadeQp):
                 if widen:
                     self.widened += 1
                 if not refine:
-                    return r.x, iters, status
+                    return r.x, iters, status, widen
                 if G is not None:
-                    return refine_on_active_set(M, c, r.x, G, gl_w, gu_w, eps=eps0), iters, status
-                return refine_on_active_set(M, c, r.x, Z, lo_w, hi_w, eps=eps0), iters, status
-        return None, iters, status
+                    return refine_on_active_set(M, c, r.x, G, gl_w, gu_w, eps=eps0), iters, status, widen
+                return refine_on_active_set(M, c, r.x, Z, lo_w, hi_w, eps=eps0), iters, status, widen
+        return None, iters, status, 0.0
 
 
 def _c(a: np.ndarray) -> np.ndarray:

@@ -93,6 +93,30 @@ def test_the_solver_trades_only_on_ticks_whose_wrists_cannot_be_met(robot17):
     assert core.saturation.counts["traded"] == 0
 
 
+def test_the_feedforward_trigger_trades_an_outrun_arm_not_a_lagging_one(robot17):
+    """``saturation_trigger``: a still target 10 cm from the wrists (the start-up move from rest: gain x error is
+    far beyond the box) misses the strict wrist level, yet the operator is not outrunning the arm, so the
+    "feedforward" trigger keeps the strict solution bit for bit while "residual" trades it; a target moving at
+    5 m/s is out of the joints' speed reach and is traded by both."""
+    robot = robot17
+    lagging = targets_from_q(robot, robot.q_rest, offset=np.array([0.0, 0.0, 0.1]))
+    _, strict = _tick(robot, SolverConfig(qp="daqp"), lagging)
+    assert strict.status == "infeasible"
+    ff_core, ff = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0), lagging)
+    assert ff_core.config.saturation_trigger == "feedforward"  # the default trigger
+    np.testing.assert_array_equal(ff.q, strict.q)
+    assert ff_core.saturation.counts["traded"] == 0
+    res_core, res = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0, saturation_trigger="residual"), lagging)
+    assert res_core.saturation.counts["traded"] == 1
+    assert not np.array_equal(res.q, strict.q)
+    fast = targets_from_q(robot, robot.q_rest, vel=np.array([0.0, 0.0, 5.0]))
+    for trigger in ("feedforward", "residual"):
+        core, _ = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0, saturation_trigger=trigger), fast)
+        assert core.saturation.counts["traded"] == 1, trigger
+    with pytest.raises(ValueError, match="saturation_trigger"):
+        SolverConfig(saturation_trigger="always")
+
+
 def test_the_trade_is_for_strict_hierarchies_without_a_reserve_and_its_settings_are_checked(robot17):
     assert SolverCore(robot17, SolverConfig(algo="wqp", saturation_weight=2.0)).saturation is None
     assert SolverCore(robot17, SolverConfig(algo="hqp-original", saturation_weight=2.0)).saturation is not None

@@ -74,7 +74,8 @@ def test_a_gap_or_a_held_target_restarts_at_constant_velocity():
 
 
 def test_the_solver_config_selects_it():
-    assert not TargetTracker.for_solver(SolverConfig()).acceleration
+    assert TargetTracker.for_solver(SolverConfig()).acceleration  # on by default since session 11
+    assert not TargetTracker.for_solver(SolverConfig(target_acceleration=False)).acceleration
     tracker = TargetTracker.for_solver(SolverConfig(target_acceleration=True, target_acceleration_memory=5))
     assert tracker.acceleration and tracker.acceleration_memory == 5
 
