@@ -53,8 +53,9 @@ HUMAN_BONES: tuple[str, ...] = (
     *(f"{side}_{bone}" for side in SIDES for bone in ("clavicle", "shoulder", "elbow", "wrist", "hand")),
 )
 #: Command status values a solver may report (``collision``: the wrists are held at the safety
-#: distance from the body, their target being inside it or behind it).
-COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init", "collision")
+#: distance from the body, their target being inside it or behind it; ``surface``: the wrist level is
+#: met on a wrist target the solver moved onto the trunk's surface, the published one being inside it).
+COMMAND_STATUSES: tuple[str, ...] = ("ok", "infeasible", "held", "failed", "init", "collision", "surface")
 
 
 class MessageError(ValueError):

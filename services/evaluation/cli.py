@@ -27,7 +27,12 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
-from services.solver.cli import add_self_collision_choice, self_collision_choice
+from services.solver.cli import (
+    add_self_collision_choice,
+    add_trunk_projection_choice,
+    self_collision_choice,
+    trunk_projection_choice,
+)
 from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
@@ -73,6 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
     add_self_collision_choice(p)
+    add_trunk_projection_choice(p)
     p.add_argument(
         "--wrist-orientation-level",
         type=int,
@@ -334,6 +340,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     collision = self_collision_choice(args)
     if collision is not None:
         solver["self_collision"] = collision
+    projection = trunk_projection_choice(args)
+    if projection is not None:
+        solver["trunk_projection"] = projection
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.

@@ -14,7 +14,14 @@ from shared.targets import ELBOWS, WRISTS
 #: Level-1 residual under which the strict hierarchy counts a wrist target as met.
 REACHABLE_TOL = 1e-3
 #: Per-clip counts the summary adds up (and gives as integers).
-SUMMED = ("limit_violations", "acceleration_violations", "self_collisions", "qp_fallbacks", "recoveries")
+SUMMED = (
+    "limit_violations",
+    "acceleration_violations",
+    "self_collisions",
+    "qp_fallbacks",
+    "recoveries",
+    "surface_ticks",
+)
 #: Wrist error [m] above which a tick on a reachable target counts towards ``stuck_s``.
 STUCK_ERR = 0.02
 
@@ -103,6 +110,13 @@ def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.nda
     for side, ok in report.reachable().items():
         out[side] = np.where(rows >= 0, ok[np.maximum(rows, 0)], False)
     return out
+
+
+def tick_inside(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
+    """side -> (K,) bool: the wrist target the tick tracks (its frame's) puts the hand inside the body."""
+    index = {int(s): k for k, s in enumerate(report.seq)}
+    rows = np.array([index.get(int(s), -1) for s in trace.seq])
+    return {side: np.where(rows >= 0, v[np.maximum(rows, 0)], False) for side, v in report.inside().items()}
 
 
 def longest_run(flags: np.ndarray) -> int:
@@ -251,6 +265,8 @@ def trace_metrics(
         m["self_collision_source"] = "sim contacts" if sim else "kinematic clearance < 0"
         c = trace.clearance[np.isfinite(trace.clearance)]
         m["min_clearance_cm"] = float(cm * c.min()) if c.size else None
+    if trace.counts.get("surface_ticks"):  # ticks the solver moved a wrist target onto the trunk's surface
+        m["surface_ticks"] = int(trace.counts["surface_ticks"])
     if trace.counts.get("recoveries"):  # lock-up recoveries the solver started (SolverConfig.recovery)
         m["recoveries"] = int(trace.counts["recoveries"])
     ticks = trace.counts.get("policy_ticks", 0)
@@ -272,6 +288,9 @@ def trace_metrics(
         m["pair_reachable_fraction"] = report.fraction(pair=True)
         m["speed_feasible_fraction"] = report.speed_feasible_fraction()
         m["stuck_s"] = stuck_seconds(trace, per_side)
+        if report.body_dist:  # published frames, and the ticks tracking one, whose wrist target is inside the body
+            inside = tick_inside(trace, report)
+            m["targets_in_body"] = report.in_body() | {"ticks_inside": int(np.sum(inside["left"] | inside["right"]))}
     if reachable is not None or report is not None:
         m["wrist_err_cm_reachable"] = _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, WRISTS, mask))
         m["elbow_err_cm_reachable"] = _stats(cm * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, ELBOWS, mask))

@@ -4,7 +4,12 @@ The retargeter's own claim that a target is reachable is not evidence; this chec
 published wrist target (and optionally its elbow target with it) it runs damped least squares over
 that arm's 7 joints within their limits (waist at rest, the set the retargeter promises), first
 from the previous frame's solution, then from fixed seeds spread over the joint ranges. A target is
-reachable when one of the runs ends within ``tol`` of it.
+reachable when one of the runs ends within ``tol`` of it, and the robot hand posed at it is not inside
+the robot's trunk (collision-aware: the IK alone would count a target in the belly as reached, and the
+solver's self-collision dampers keep the hand out of it). The hand's distance to the trunk at the waist's
+rest is the retargeter's (:class:`services.retarget.trunk.TrunkClearance`: the solver's link proxies, the
+hand oriented as the target says, or as the IK left it when the target has no rotation); the other arm is
+not checked (it moves).
 """
 
 from __future__ import annotations
@@ -14,8 +19,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from services.retarget.trunk import TrunkClearance
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel
+from shared.rotations import quat_to_matrix
 
 #: Distance under which IK counts a wrist target as reached [m].
 IK_TOL = 1e-3
@@ -23,6 +30,10 @@ IK_TOL = 1e-3
 #: centre (the G1's shoulder axes do not intersect), which leaves a few millimetres.
 PAIR_TOL = 0.01
 SIDES = ("left", "right")
+#: Hand-to-trunk distance [m] below which a wrist target counts as inside the body, hence not reachable.
+BODY_TOL = 0.0
+#: profile source -> its trunk distance (built once: the proxies take ~1-3 s)
+_TRUNKS: dict[str, TrunkClearance] = {}
 
 
 @dataclass
@@ -108,6 +119,10 @@ class ReachabilityReport:
             IK solutions (each warm-started from the previous: the nearest posture), NaN where unknown.
             Above the joint speed cap a target is reachable in place but not in time.
         vmax: the arm joints' speed cap [rad/s].
+        body_dist: side -> (F,) signed distance [m] from the robot hand posed at the wrist target to the trunk at
+            the waist's rest (capped a few cm beyond the safety distance; NaN: target invalid). Empty: not
+            checked. Below ``body_tol`` the target is inside the body: not reachable, whatever the IK says.
+        safety_distance: the solver's self-collision safety distance [m] (``in_body`` counts within it too).
     """
 
     seq: np.ndarray
@@ -117,17 +132,39 @@ class ReachabilityReport:
     vmax: float = np.inf
     tol: float = IK_TOL
     pair_tol: float = PAIR_TOL
+    body_dist: dict[str, np.ndarray] = field(default_factory=dict)
+    body_tol: float = BODY_TOL
+    safety_distance: float = 0.0
+
+    def inside(self) -> dict[str, np.ndarray]:
+        """side -> (F,) bool, the wrist target puts the hand inside the body (False where unchecked or invalid)."""
+        return {s: np.nan_to_num(d, nan=np.inf) < self.body_tol for s, d in self.body_dist.items()}
 
     def reachable(self, pair: bool = False) -> dict[str, np.ndarray]:
-        """side -> (F,) bool, the target (pair) reached within tol; invalid targets count as reachable."""
+        """side -> (F,) bool, the target (pair) reached within tol with the hand outside the body; invalid targets
+        count as reachable."""
         src, tol = (self.pair_res, self.pair_tol) if pair else (self.wrist_res, self.tol)
-        return {s: ~(np.nan_to_num(r, nan=0.0) > tol) for s, r in src.items()}
+        inside = self.inside()
+        return {s: ~(np.nan_to_num(r, nan=0.0) > tol) & ~inside.get(s, False) for s, r in src.items()}
 
     def fraction(self, pair: bool = False) -> float:
-        """Reachable share of the valid targets over both arms."""
-        src, tol = (self.pair_res, self.pair_tol) if pair else (self.wrist_res, self.tol)
-        vals = np.concatenate([r[np.isfinite(r)] for r in src.values()])
-        return float(np.mean(vals <= tol)) if vals.size else 1.0
+        """Reachable share of the valid targets over both arms (a target inside the body is not reachable)."""
+        src = self.pair_res if pair else self.wrist_res
+        ok = self.reachable(pair)
+        vals = np.concatenate([ok[s][np.isfinite(r)] for s, r in src.items()])
+        return float(np.mean(vals)) if vals.size else 1.0
+
+    def in_body(self) -> dict:
+        """Counts of published frames whose wrist target puts the hand inside the body (either arm), within the
+        solver's safety distance of it, and the smallest hand-to-trunk distance [cm] (None: unchecked)."""
+        if not self.body_dist:
+            return {"frames_inside": None, "frames_within_safety": None, "min_distance_cm": None}
+        d = np.vstack([np.nan_to_num(v, nan=np.inf) for v in self.body_dist.values()]).min(axis=0)
+        return {
+            "frames_inside": int(np.sum(d < self.body_tol)),
+            "frames_within_safety": int(np.sum(d < self.safety_distance)),
+            "min_distance_cm": float(100.0 * d.min()) if np.isfinite(d).any() else None,
+        }
 
     def speed_feasible_fraction(self) -> float | None:
         """Share of frames (both arms) whose IK posture change stays within the joint speed cap."""
@@ -135,14 +172,31 @@ class ReachabilityReport:
         return float(np.mean(vals <= self.vmax * (1 + 1e-6))) if vals.size else None
 
 
-def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = True) -> ReachabilityReport:
+def trunk_for(robot: RobotModel) -> TrunkClearance | None:
+    """The hand-to-trunk distance of a robot at its waist's rest (cached per profile), None without a
+    ``[collision]`` table."""
+    if robot.profile.collision is None:
+        return None
+    key = f"{robot.profile.source}:{','.join(robot.joint_names)}"
+    if key not in _TRUNKS:
+        _TRUNKS[key] = TrunkClearance(robot, {s: robot.profile.frames[f"{s}_wrist"] for s in SIDES})
+    return _TRUNKS[key]
+
+
+def check_targets(
+    robot: RobotModel, targets: list[TaskTargets], pair: bool = True, body: bool = True
+) -> ReachabilityReport:
     """IK-check every published wrist target (and wrist + elbow pair) of a stream.
 
     Args:
         robot: reduced model whose arms are checked (waist joints, if any, stay at rest).
         pair: also check the wrist and elbow targets together.
+        body: also measure the hand's distance to the trunk at each wrist target (a target inside the body
+            is not reachable; skipped when the profile has no ``[collision]`` table).
     """
     iks = {s: ArmIk(robot, s) for s in SIDES}
+    trunk = trunk_for(robot) if body else None
+    bdist = {s: np.full(len(targets), np.nan) for s in SIDES} if trunk is not None else {}
     F = len(targets)
     wres = {s: np.full(F, np.nan) for s in SIDES}
     pres = {s: np.full(F, np.nan) for s in SIDES}
@@ -158,6 +212,12 @@ def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = Tr
             res, q = iks[s].solve(w.p, q0=warm[s])
             wres[s][k] = res
             warm[s] = q
+            if trunk is not None:
+                if w.use_rotation:
+                    R = quat_to_matrix(w.q)
+                else:  # the hand as the IK left it
+                    R = robot.frame_poses(q, names=(f"{s}_wrist",))[f"{s}_wrist"][1]
+                bdist[s][k] = trunk.nearest(s, w.p, R)[0]
             e = tt.targets.get(f"{s}_elbow")
             if pair and e is not None and e.valid:
                 res, q = iks[s].solve(w.p, e.p, q0=warm_pair[s] if warm_pair[s] is not None else warm[s], tol=PAIR_TOL)
@@ -169,4 +229,6 @@ def check_targets(robot: RobotModel, targets: list[TaskTargets], pair: bool = Tr
                     speed[s][k] = np.abs(q[moved] - last[s][1][moved]).max() / (tt.hdr.stamp - last[s][0])
                 last[s] = (tt.hdr.stamp, q.copy())
     vmax = float(robot.vmax.min())
-    return ReachabilityReport(np.array([tt.hdr.seq for tt in targets]), wres, pres, speed, vmax)
+    d_s = robot.profile.collision.safety_distance if trunk is not None else 0.0
+    seq = np.array([tt.hdr.seq for tt in targets])
+    return ReachabilityReport(seq, wres, pres, speed, vmax, body_dist=bdist, safety_distance=d_s)

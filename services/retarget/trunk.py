@@ -23,6 +23,8 @@ jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -49,20 +51,37 @@ class TrunkClearance:
     """Pushes wrist targets (robot base frame) out of the robot's trunk, held at the waist's rest posture.
 
     Args:
-        robot: the retargeter's model (arms only: the waist at rest). Its profile's ``[collision]`` table
-            gives the trunk (the links paired with the wrist link's group that no arm joint moves) and the
-            safety distance.
+        robot: the model whose arms reach for the targets (the retargeter's: arms only; the solver's may hold
+            the waist, which counts as trunk, not arm). Its profile's ``[collision]`` table gives the trunk (the
+            links paired with the wrist link's group that no arm joint moves) and the safety distance.
         wrist_frames: side -> the wrist target's link (profile ``[frames]``).
+        waist_carried: keep only the trunk links the waist moves (on the G1 torso, logo and head; not the
+            pelvis), all rigid on the waist's last link, :attr:`carrier`. The trunk is still posed at the
+            waist's rest: a caller with the waist elsewhere maps its targets into that pose
+            (``services.solver.trunk_projection``).
+        sca: the robot's self-collision model, whose link proxies are shared (default: one is built, ~3 s);
+            it is not changed.
 
     Raises:
-        ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy.
+        ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or (with
+            ``waist_carried``) the profile has no waist or no trunk link paired with the wrists is on it.
     """
 
-    def __init__(self, robot: RobotModel, wrist_frames: dict[str, str]):
-        sca = SelfCollisionAvoidance(robot)
-        sca.set_q(robot.q_rest)
-        m, d = sca.model, sca.data
-        arm_bodies = {m.jnt_bodyid[m.joint(j).id] for j in robot.joint_names}
+    def __init__(
+        self,
+        robot: RobotModel,
+        wrist_frames: dict[str, str],
+        waist_carried: bool = False,
+        sca: SelfCollisionAvoidance | None = None,
+    ):
+        sca = sca or SelfCollisionAvoidance(robot)
+        m = sca.model
+        d = mujoco.MjData(m)  # its own data at the rest pose: the shared model's state is left alone
+        d.qpos[:] = sca.data.qpos
+        d.qpos[sca.qpos_idx] = robot.q_rest
+        mujoco.mj_kinematics(m, d)
+        waist = set(robot.profile.waist)
+        arm_bodies = {m.jnt_bodyid[m.joint(j).id] for j in robot.joint_names if j not in waist}
 
         def moved_by_arm(body: int) -> bool:
             while body > 0:
@@ -82,6 +101,16 @@ class TrunkClearance:
                 other = sca.links[b] if a == i else sca.links[a] if b == i else None
                 if other is not None and not moved_by_arm(m.body(other).id):
                     trunk.add(other)
+        #: the body the waist's last joint moves, which carries the trunk links (``waist_carried``), else None
+        self.carrier: str | None = None
+        if waist_carried:
+            if not waist:
+                raise ValueError(f"robot profile {robot.profile.name} has no waist to carry a trunk")
+            # the waist joints form one chain: the deepest one's body carries everything the waist moves
+            bodies = [m.jnt_bodyid[m.joint(j).id] for j in robot.profile.waist]
+            carrier = max(bodies, key=lambda b: _depth(m, b))
+            self.carrier = m.body(carrier).name
+            trunk = {link for link in trunk if _on(m, m.body(link).id, carrier)}
         if not trunk:
             raise ValueError("no trunk link is paired with the wrists in [collision]")
         #: the trunk links (sorted)
@@ -129,7 +158,12 @@ class TrunkClearance:
         mujoco.mj_kinematics(self.model, self.data)
         cap = self.clearance + LOOKOUT
         best, normal, geom = cap, np.zeros(3), -1
+        xpos, rbound = self.data.geom_xpos, self.model.geom_rbound
+        hand, r_hand = xpos[g_hand], rbound[g_hand]
         for g in self._trunk_geoms:
+            c = xpos[g] - hand
+            if math.sqrt(c @ c) - r_hand - rbound[g] >= best:  # their bounding spheres are already farther apart
+                continue
             dist = mujoco.mj_geomDistance(self.model, self.data, g, g_hand, cap, self._fromto)
             if dist < best:
                 best, geom = dist, g
@@ -166,3 +200,20 @@ class TrunkClearance:
                 if g2 == g and abs(dist - self.clearance) < TOL:
                     break
         return out
+
+
+def _depth(m: mujoco.MjModel, body: int) -> int:
+    """Bodies between ``body`` and the world."""
+    n = 0
+    while body > 0:
+        body, n = m.body_parentid[body], n + 1
+    return n
+
+
+def _on(m: mujoco.MjModel, body: int, carrier: int) -> bool:
+    """``body`` is ``carrier`` or rigidly attached below it (no joint in between)."""
+    while body != carrier:
+        if body <= 0 or m.body_jntnum[body] > 0:
+            return False
+        body = m.body_parentid[body]
+    return True

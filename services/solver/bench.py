@@ -33,7 +33,12 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from services.solver.cli import add_self_collision_choice, self_collision_choice
+from services.solver.cli import (
+    add_self_collision_choice,
+    add_trunk_projection_choice,
+    self_collision_choice,
+    trunk_projection_choice,
+)
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.registry import ALGORITHMS, USES_QP
 from shared.messages import Header, Target, TaskTargets
@@ -141,13 +146,17 @@ def time_solver(
     rate: float,
     warmup: int,
     self_collision: bool | None = None,
+    trunk_projection: bool | None = None,
 ) -> dict:
     """Run SolverCore over the frames at ``rate`` Hz; per-tick wall time of ``step``.
 
-    ``self_collision``: the damper rows on or off (None: ``SolverConfig``'s default, as shipped)."""
+    ``self_collision``, ``trunk_projection``: the damper rows, the projection of wrist targets onto the trunk's
+    surface on or off (None: ``SolverConfig``'s default, as shipped)."""
     cfg = SolverConfig(algo=algo, qp=qp, rate=rate)
     if self_collision is not None:
         cfg = replace(cfg, self_collision=self_collision)
+    if trunk_projection is not None:
+        cfg = replace(cfg, trunk_projection=trunk_projection)
     core = SolverCore(robot, cfg)
     stamps = np.array([f.hdr.stamp for f in frames]) - frames[0].hdr.stamp
     ticks = int(stamps[-1] * rate) + 1
@@ -174,6 +183,7 @@ def time_solver(
         "qp": qp if algo in USES_QP else "none",
         "dof": robot.nq,
         "self_collision": core.collision is not None,
+        "trunk_projection": core.trunk_projection is not None,
         "ticks": int(ms.size),
         "tick_ms": _percentiles(ms),
         # CPU time of this thread: what the tick costs without the time other processes took the core.
@@ -255,14 +265,16 @@ def run_bench(
     warmup: int,
     mink_solver: str | None,
     self_collision: bool | None = None,
+    trunk_projection: bool | None = None,
 ) -> dict:
-    """All combinations; returns the JSON-ready report (``self_collision`` as in :func:`time_solver`)."""
+    """All combinations; returns the JSON-ready report (``self_collision``, ``trunk_projection`` as in
+    :func:`time_solver`)."""
     load_before = os.getloadavg()[0]
     results = []
     for dof, robot in robots.items():
         for algo in algos:
             for qp in qps if algo in USES_QP else qps[:1]:
-                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup, self_collision)
+                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup, self_collision, trunk_projection)
                 ms = res["tick_ms"]
                 log.info("%-15s %-5s %2d DoF  p50 %.4f ms  p99 %.4f ms", algo, res["qp"], dof, ms["p50"], ms["p99"])
                 results.append(res)
@@ -322,6 +334,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mink-solver", default="daqp", help="qpsolvers name for mink ('none' to skip)")
     parser.add_argument("--robot", default=None, help="robot profile")
     add_self_collision_choice(parser)
+    add_trunk_projection_choice(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -339,7 +352,10 @@ def main(args: argparse.Namespace) -> int:
             frames_by_dof[dof] = synthetic_targets(robot, args.seconds)
     mink_solver = None if args.mink_solver == "none" else args.mink_solver
     collision = self_collision_choice(args)
-    report = run_bench(frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, collision)
+    projection = trunk_projection_choice(args)
+    report = run_bench(
+        frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, collision, projection
+    )
     if args.targets:
         report["targets"] = str(args.targets)
     elif args.clip:

@@ -47,6 +47,24 @@ def self_collision_choice(args: argparse.Namespace) -> bool | None:
     return None if choice is None else choice == "on"
 
 
+def add_trunk_projection_choice(parser: argparse.ArgumentParser) -> None:
+    """``--trunk-projection on|off`` for the commands that build their own solver (``mimic eval``, ``mimic bench
+    solvers``); read it back with :func:`trunk_projection_choice`."""
+    parser.add_argument(
+        "--trunk-projection",
+        choices=("on", "off"),
+        default=None,
+        help="move wrist targets inside the waist-carried trunk onto its surface, where the waist holds it now "
+        "(SolverConfig.trunk_projection; default: SolverConfig's, as shipped)",
+    )
+
+
+def trunk_projection_choice(args: argparse.Namespace) -> bool | None:
+    """``--trunk-projection`` as a ``SolverConfig.trunk_projection`` value (None: not given, keep the default)."""
+    choice = getattr(args, "trunk_projection", None)
+    return None if choice is None else choice == "on"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of ``mimic solve``."""
     g = parser.add_argument_group("solver (SolverConfig)")

@@ -41,6 +41,7 @@ from services.solver.registry import make_algorithm
 from services.solver.saturation import SaturatedWristTrade
 from services.solver.slow_joints import SlowJoints
 from services.solver.targets import TargetSample, TargetTracker
+from services.solver.trunk_projection import TrunkProjection
 from shared.kinematics import AlignmentTask, Configuration, FrameTask, JointVelocityTask, PositionTask, PostureTask
 from shared.messages import Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
@@ -235,6 +236,14 @@ class SolverConfig:
             a demo artefact that is gone: the demo's box lift ended with the box held low and the stream jumped 13
             cm to the ellipse's hanging arms, and the damper steered that jump onto another branch (waist yaw 1.0
             rad, the elbow 0.7-1.0 cm off for 1.5 s); the demo motions now start and end at rest.
+        trunk_projection: each tick, a wrist target that would put the robot hand inside the trunk links the
+            waist carries (torso, logo, head), where the current waist joints hold them, is moved onto their
+            surface plus the clearance before the wrist tasks see it (``trunk_projection.TrunkProjection``), and
+            the command's status says so (``surface``, or the reason of a worse status). Without it a strict
+            wrist level meets such a target by turning the waist, which carries the torso away from it
+            (call_normal_001: waist yaw -40 deg, the elbow 14 cm off). Needs the ``[collision]`` table and a
+            waist in the profile. Off by default (``mimic solve --trunk-projection``; measured in the solver
+            README).
     """
 
     algo: str = "hqp-nullspace"
@@ -264,6 +273,7 @@ class SolverConfig:
     infeasible_tol: float = 1e-3
     wrist_orientation_level: int = 2
     self_collision: bool = True
+    trunk_projection: bool = False
     elbow_orientation_cost: float = 0.3
     recovery: bool = True
     range_centring_cost: float = 3.0
@@ -375,6 +385,12 @@ class SolverCore:
             SelfCollisionAvoidance(robot) if cfg.self_collision and robot.profile.collision is not None else None
         )
         self._ineq: Inequalities | None = None
+        #: the projection of wrist targets onto the waist-carried trunk's surface (``trunk_projection``), or None
+        self.trunk_projection = (
+            TrunkProjection(robot, self.collision)
+            if cfg.trunk_projection and robot.profile.collision is not None and robot.profile.waist
+            else None
+        )
         self.recovery = LockupRecovery(robot) if cfg.recovery and cfg.algo in STRICT_ALGORITHMS else None
         self._level1_met = False  # the last tick met the wrist level (the recovery's lock test)
         self.smoother = (
@@ -402,6 +418,7 @@ class SolverCore:
             "policy_ticks": 0,
             "gate_closed": 0,
             "recoveries": 0,  # lock-up recoveries started (``recovery.LockupRecovery``)
+            "surface_ticks": 0,  # ticks with a wrist target moved onto the trunk's surface (``trunk_projection``)
         }
 
     def _build_levels(self, cfg: SolverConfig) -> None:
@@ -898,6 +915,9 @@ class SolverCore:
         residual) or ok."""
         if qd is None:
             return "failed", reason
+        surface = self._surface_reason()
+        if surface:
+            reason = _also(reason, surface)
         if held:
             return "held", "; ".join([*held, reason] if reason else held)
         if sol.residuals and sol.residuals[0] > self.config.infeasible_tol:
@@ -909,7 +929,7 @@ class SolverCore:
                 "target out of reach or faster than the joint limits allow"
             )
             return "infeasible", f"{why}; {reason}" if reason else why
-        return "ok", reason
+        return ("surface" if surface else "ok"), reason
 
     def _integrate(self, qd: np.ndarray | None, dt: float) -> None:
         """q_raw += qd dt; a failed solve (qd None) brakes as hard as the bounds allow."""
@@ -953,6 +973,8 @@ class SolverCore:
         """Load the tracker's targets into the tasks at time t; returns why targets are held (empty: none)."""
         conf = self.configuration
         samples = {name: self.tracker.sample(name, t) for name in (*WRISTS, *ELBOWS)}
+        if self.trunk_projection is not None:
+            self._project_wrists(samples)
         missing: list[str] = []
         held: list[str] = []
         elbows = [t for t in self.elbow_tasks if side_of(t.frame) not in self.wrist_only]  # wrist-only: posture level
@@ -987,6 +1009,30 @@ class SolverCore:
         if missing:
             why.append("never received: " + ", ".join(missing))
         return why
+
+    def _project_wrists(self, samples: dict[str, TargetSample | None]) -> None:
+        """Replace each wrist sample that puts the hand inside the waist-carried trunk, at the current q_raw (the
+        configuration is updated), by its projection onto the trunk's surface (``TrunkProjection``)."""
+        proj = self.trunk_projection
+        conf = self.configuration
+        proj.set_carrier(*conf.get_frame_pose(proj.carrier))
+        for name in WRISTS:
+            s = samples[name]
+            if s is None:
+                continue
+            # the hand's orientation: the target's when it has one (level 2 tracks it), else where it is now
+            R = s.R if s.use_rotation else conf.get_frame_pose(name)[1]
+            samples[name] = proj.sample(side_of(name), s, R)
+        if proj.moved:
+            self.counts["surface_ticks"] += 1
+
+    def _surface_reason(self) -> str:
+        """Which wrist targets this tick's projection moved onto the trunk's surface, and how far ('' if none)."""
+        proj = self.trunk_projection
+        if proj is None or not proj.moved:
+            return ""
+        moved = ", ".join(f"{s} wrist {100 * d:.1f} cm" for s, d in proj.moved.items())
+        return f"wrist target inside the body: tracked at the trunk's surface ({moved} out)"
 
     def _aim_poses(self, tasks: list[FrameTask], samples: dict[str, TargetSample | None], cost: float) -> bool:
         """Aim each pose task at its sample (held where it is when there is none); True when one uses rotation."""
