@@ -27,12 +27,7 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
-from services.solver.cli import (
-    add_self_collision_choice,
-    add_trunk_projection_choice,
-    self_collision_choice,
-    trunk_projection_choice,
-)
+from services.solver.cli import SWITCHES, add_switches, switch_values
 from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
@@ -53,6 +48,14 @@ RETARGET_SWITCHES = {
 PAPER = {
     "hqp-nullspace": {"wrist_err_cm": {"mean": 0.12, "max": 0.65}, "elbow_err_cm": {"mean": 0.75, "max": 2.10}},
     "wqp": {"wrist_err_cm": {"mean": 0.22, "max": 2.50}, "elbow_err_cm": {"mean": 5.58, "max": 9.53}},
+}
+
+
+#: The solver's on/off switches ``mimic eval`` takes (``--field on|off``): the shared ones and two of its own.
+EVAL_SWITCHES = SWITCHES | {
+    "recovery": "strict HQPs: the lock-up recovery",
+    "target_acceleration": "extrapolate the targets between frames with the acceleration between consecutive "
+    "frames; the tick errors' reference and mink's targets follow the same extrapolation",
 }
 
 
@@ -77,8 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-sim", action="store_true", help="skip the MuJoCo lock-step run (no *_sim errors)")
     p.add_argument("--no-waist", action="store_true", help="solve the 14 arm joints only")
-    add_self_collision_choice(p)
-    add_trunk_projection_choice(p)
+    add_switches(p, EVAL_SWITCHES)
     p.add_argument(
         "--wrist-orientation-level",
         type=int,
@@ -159,20 +161,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --saturation-weight: trade only ticks whose target velocity is out of the joints' speed reach "
         "(feedforward) or every tick the wrist level misses (residual) (SolverConfig.saturation_trigger; "
         "default: SolverConfig's)",
-    )
-    p.add_argument(
-        "--recovery",
-        choices=("on", "off"),
-        default=None,
-        help="strict HQPs: the lock-up recovery (SolverConfig.recovery; default: SolverConfig's)",
-    )
-    p.add_argument(
-        "--target-acceleration",
-        choices=("on", "off"),
-        default=None,
-        help="extrapolate the targets between frames with the acceleration between consecutive frames "
-        "(SolverConfig.target_acceleration; default: SolverConfig's); the tick errors' reference and mink's "
-        "targets follow the same extrapolation",
     )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
@@ -331,18 +319,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     trigger = getattr(args, "saturation_trigger", None)
     if trigger is not None:
         solver["saturation_trigger"] = trigger
-    recovery = getattr(args, "recovery", None)
-    if recovery is not None:
-        solver["recovery"] = recovery == "on"
-    target_acceleration = getattr(args, "target_acceleration", None)
-    if target_acceleration is not None:
-        solver["target_acceleration"] = target_acceleration == "on"
-    collision = self_collision_choice(args)
-    if collision is not None:
-        solver["self_collision"] = collision
-    projection = trunk_projection_choice(args)
-    if projection is not None:
-        solver["trunk_projection"] = projection
+    solver |= switch_values(args, EVAL_SWITCHES)
     wq = getattr(args, "wqp_weights", None)
     wqp_weights = tuple(float(w) for w in wq.split(",")) if wq else None
     # The paper's elbow pose: elbow orientations published (use_rotation) and tracked on level 2.

@@ -33,12 +33,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from services.solver.cli import (
-    add_self_collision_choice,
-    add_trunk_projection_choice,
-    self_collision_choice,
-    trunk_projection_choice,
-)
+from services.solver.cli import add_switches, switch_values
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.registry import ALGORITHMS, USES_QP
 from shared.messages import Header, Target, TaskTargets
@@ -145,18 +140,13 @@ def time_solver(
     frames: list[TaskTargets],
     rate: float,
     warmup: int,
-    self_collision: bool | None = None,
-    trunk_projection: bool | None = None,
+    switches: dict[str, bool] | None = None,
 ) -> dict:
     """Run SolverCore over the frames at ``rate`` Hz; per-tick wall time of ``step``.
 
-    ``self_collision``, ``trunk_projection``: the damper rows, the projection of wrist targets onto the trunk's
-    surface on or off (None: ``SolverConfig``'s default, as shipped)."""
-    cfg = SolverConfig(algo=algo, qp=qp, rate=rate)
-    if self_collision is not None:
-        cfg = replace(cfg, self_collision=self_collision)
-    if trunk_projection is not None:
-        cfg = replace(cfg, trunk_projection=trunk_projection)
+    ``switches``: ``SolverConfig`` on/off fields to set (``cli.SWITCHES``: the damper rows, the projection of wrist
+    targets onto the trunk's surface; absent: ``SolverConfig``'s default, as shipped)."""
+    cfg = replace(SolverConfig(algo=algo, qp=qp, rate=rate), **(switches or {}))
     core = SolverCore(robot, cfg)
     stamps = np.array([f.hdr.stamp for f in frames]) - frames[0].hdr.stamp
     ticks = int(stamps[-1] * rate) + 1
@@ -264,17 +254,15 @@ def run_bench(
     rate: float,
     warmup: int,
     mink_solver: str | None,
-    self_collision: bool | None = None,
-    trunk_projection: bool | None = None,
+    switches: dict[str, bool] | None = None,
 ) -> dict:
-    """All combinations; returns the JSON-ready report (``self_collision``, ``trunk_projection`` as in
-    :func:`time_solver`)."""
+    """All combinations; returns the JSON-ready report (``switches`` as in :func:`time_solver`)."""
     load_before = os.getloadavg()[0]
     results = []
     for dof, robot in robots.items():
         for algo in algos:
             for qp in qps if algo in USES_QP else qps[:1]:
-                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup, self_collision, trunk_projection)
+                res = time_solver(robot, algo, qp, frames_by_dof[dof], rate, warmup, switches)
                 ms = res["tick_ms"]
                 log.info("%-15s %-5s %2d DoF  p50 %.4f ms  p99 %.4f ms", algo, res["qp"], dof, ms["p50"], ms["p99"])
                 results.append(res)
@@ -333,8 +321,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=200, help="ticks left out of the statistics")
     parser.add_argument("--mink-solver", default="daqp", help="qpsolvers name for mink ('none' to skip)")
     parser.add_argument("--robot", default=None, help="robot profile")
-    add_self_collision_choice(parser)
-    add_trunk_projection_choice(parser)
+    add_switches(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -351,11 +338,8 @@ def main(args: argparse.Namespace) -> int:
             # Each model's own motion, so that every target is reachable by that model.
             frames_by_dof[dof] = synthetic_targets(robot, args.seconds)
     mink_solver = None if args.mink_solver == "none" else args.mink_solver
-    collision = self_collision_choice(args)
-    projection = trunk_projection_choice(args)
-    report = run_bench(
-        frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, collision, projection
-    )
+    switches = switch_values(args)
+    report = run_bench(frames_by_dof, robots, args.algos, args.qps, args.rate, args.warmup, mink_solver, switches)
     if args.targets:
         report["targets"] = str(args.targets)
     elif args.clip:

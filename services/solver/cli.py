@@ -30,39 +30,30 @@ FLAGS = {
 }
 
 
-def add_self_collision_choice(parser: argparse.ArgumentParser) -> None:
-    """``--self-collision on|off`` for the commands that build their own solver (``mimic eval``, ``mimic bench
-    solvers``), so an on/off comparison runs in one tree; read it back with :func:`self_collision_choice`."""
-    parser.add_argument(
-        "--self-collision",
-        choices=("on", "off"),
-        default=None,
-        help="the solver's self-collision damper rows on or off (default: SolverConfig's, as shipped)",
-    )
+#: ``SolverConfig`` switches that the commands building their own solver (``mimic eval``, ``mimic bench solvers``)
+#: take as ``--name on|off``, so an on/off comparison runs in one tree: field -> what it switches.
+SWITCHES = {
+    "self_collision": "the solver's self-collision damper rows",
+    "trunk_projection": "move wrist targets inside the waist-carried trunk onto its surface, where the waist holds "
+    "it now",
+}
 
 
-def self_collision_choice(args: argparse.Namespace) -> bool | None:
-    """``--self-collision`` as a ``SolverConfig.self_collision`` value (None: not given, keep the default)."""
-    choice = getattr(args, "self_collision", None)
-    return None if choice is None else choice == "on"
+def add_switches(parser: argparse.ArgumentParser, switches: dict[str, str] = SWITCHES) -> None:
+    """One ``--field on|off`` flag per ``SolverConfig`` field of ``switches`` (field -> help text), default None (keep
+    ``SolverConfig``'s); read them back with :func:`switch_values`."""
+    for field, text in switches.items():
+        parser.add_argument(
+            "--" + field.replace("_", "-"),
+            choices=("on", "off"),
+            default=None,
+            help=f"{text} (SolverConfig.{field}; default: SolverConfig's, as shipped)",
+        )
 
 
-def add_trunk_projection_choice(parser: argparse.ArgumentParser) -> None:
-    """``--trunk-projection on|off`` for the commands that build their own solver (``mimic eval``, ``mimic bench
-    solvers``); read it back with :func:`trunk_projection_choice`."""
-    parser.add_argument(
-        "--trunk-projection",
-        choices=("on", "off"),
-        default=None,
-        help="move wrist targets inside the waist-carried trunk onto its surface, where the waist holds it now "
-        "(SolverConfig.trunk_projection; default: SolverConfig's, as shipped)",
-    )
-
-
-def trunk_projection_choice(args: argparse.Namespace) -> bool | None:
-    """``--trunk-projection`` as a ``SolverConfig.trunk_projection`` value (None: not given, keep the default)."""
-    choice = getattr(args, "trunk_projection", None)
-    return None if choice is None else choice == "on"
+def switch_values(args: argparse.Namespace, switches: dict[str, str] = SWITCHES) -> dict[str, bool]:
+    """The ``SolverConfig`` values of the switches given on the command line (absent ones are left out)."""
+    return {f: getattr(args, f) == "on" for f in switches if getattr(args, f, None) is not None}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
