@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--plot", default=None, help="learning-curve PNG (default: next to --json, *_curve.png)")
     t.add_argument("--relabel-rounds", type=int, default=2, help="Algorithm 1 rounds after pre-training")
     t.add_argument("--holdout-every", type=int, default=4, help="every k-th clip (sorted by name) is held out")
+    t.add_argument("--holdout-fold", type=int, default=None,
+                   help="which of the --holdout-every folds is held out, 0-based (default: the last, k - 1); "
+                        "folds 0..k-1 together hold every clip out once (cross-validation)")  # fmt: skip
     t.add_argument("--pretrain-fraction", type=float, default=0.4, help="share of demonstration time before round 1")
     t.add_argument("--chunk-s", type=float, default=10.0, help="demonstration chunk length [s]")
     t.add_argument("--eps", type=float, default=0.0, help="Algorithm 1 threshold on ||a - a_hat||^2 [(rad/s)^2]")
@@ -86,12 +89,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--json", default=None, help="also write the JSON here")
 
 
-def split_clips(clips: list[str], every: int) -> tuple[list[str], list[str]]:
-    """(train, test) by clip: sorted by file name, every ``every``-th (1-based) held out."""
+def split_clips(clips: list[str], every: int, fold: int | None = None) -> tuple[list[str], list[str]]:
+    """(train, test) by clip: sorted by file name, the clips at 0-based positions ``i`` with ``i % every == fold``
+    held out (default fold ``every - 1``: every ``every``-th clip, 1-based). Folds ``0 .. every - 1`` hold every clip
+    out exactly once.
+
+    Raises:
+        ValueError: fold outside ``0 .. every - 1``.
+    """
     paths = sorted(clips, key=lambda p: Path(p).name)
     if every < 2:
         return paths, []
-    test = [p for i, p in enumerate(paths) if i % every == every - 1]
+    fold = every - 1 if fold is None else fold
+    if not 0 <= fold < every:
+        raise ValueError(f"--holdout-fold must be in 0..{every - 1} for --holdout-every {every}, got {fold}")
+    test = [p for i, p in enumerate(paths) if i % every == fold]
     return [p for p in paths if p not in test], test
 
 
@@ -137,10 +149,13 @@ def _train(args: argparse.Namespace) -> int:
 
     if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
         raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
+    try:
+        train_paths, test_paths = split_clips(args.clips, args.holdout_every, args.holdout_fold)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     torch = require_torch()
     t_start = time.perf_counter()
     np.random.seed(args.seed)
-    train_paths, test_paths = split_clips(args.clips, args.holdout_every)
     if not train_paths:
         raise SystemExit("no training clips left after the hold-out")
     robot = build_robot_model(with_waist=False)

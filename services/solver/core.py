@@ -767,7 +767,8 @@ class SolverCore:
         status, reason = self._status(qd, sol, held, reason)
         self._level1_met = bool(sol.ok and sol.residuals and sol.residuals[0] <= self.config.infeasible_tol)
         if self._publish_state(qd, dt):
-            reason = _also(reason, "safety clamp (smoother)")
+            names = ", ".join(self._joints[i] for i in self.smoother.clamped_joints)
+            reason = _also(reason, f"safety clamp (smoother: {names})")
         return self._command(status, sol.residuals, sol.iters, sol.active, reason, t_start, t)
 
     def _solve(self, levels: list, lb: np.ndarray, ub: np.ndarray, ineq: Inequalities | None) -> Solution:

@@ -85,6 +85,8 @@ class QuinticSmoother:
         self.T = horizon_ticks * dt
         self.limits = limits
         self.limited = 0  # joints whose segment end the limiter moved at the last step
+        #: indices of the joints the last step clamped (C2 broken; empty in normal operation), for the reason text
+        self.clamped_joints = np.zeros(0, dtype=np.int64)
         # State rows: p, v, a (smoothed) and the segment end p1, v1 (a1 = 0).
         self._S = np.zeros((5, n))
         self.p, self.v, self.a = self._S[0], self._S[1], self._S[2]
@@ -158,6 +160,8 @@ class QuinticSmoother:
         # take the C2-breaking clamp: 7 clamps over the unsafe-target cases at a steady 4 ms, 0 at 2 ms.
         n = max(1, math.ceil(s / self.dt - 1e-9))
         clamped = limited = 0
+        if self.clamped_joints.size:
+            self.clamped_joints = self.clamped_joints[:0]
         for _ in range(n):
             clamped = max(clamped, self._advance(q_raw, qd_raw, s / n))
             limited = max(limited, self.limited)
@@ -286,6 +290,7 @@ class QuinticSmoother:
         S[0, idx] = np.minimum(np.maximum(S[0, idx], lo_p), hi_p)
         S[1, idx] = np.minimum(np.maximum(S[1, idx], self._lo[1, idx]), self._hi[1, idx])
         S[2, idx] = np.clip(S[2, idx], -lim.amax[idx], lim.amax[idx])
+        self.clamped_joints = np.union1d(self.clamped_joints, idx)
         return int(idx.size)
 
 

@@ -248,7 +248,8 @@ def test_real_solver_process_stays_safe_on_unsafe_targets(robot, local_stack):
     assert st.outcomes.get("infeasible", 0) > 0, st.outcomes
     # The algorithm kept the limits, not the last clamp. A failure names the clamped commands, their case and
     # the solver-time gaps [ticks] before them (a rare one under a full suite's load is not understood yet).
-    assert st.extra.get("safety_clamps") == 0, (st.extra, _clamped(cmds, marks, dt))
+    # (A string message: pytest shortens a tuple's repr and cut the clamped command's line in a failure.)
+    assert st.extra.get("safety_clamps") == 0, "\n".join([str(st.extra), *_clamped(cmds, marks, dt)])
 
 
 def _clamped(cmds: list[JointCommand], marks: list[tuple[str, int]], dt: float) -> list[str]:

@@ -174,6 +174,9 @@ def test_compiled_limit_check_gives_the_numpy_paths_bits():
         c = fast.step(q, qd, s)
         assert c == ref.step(q, qd, s)
         assert fast.limited == ref.limited
+        # The clamped joints are named (the solver's reason text), the same by both paths, only when clamped.
+        np.testing.assert_array_equal(fast.clamped_joints, ref.clamped_joints)
+        assert (c > 0) == (fast.clamped_joints.size > 0) and fast.clamped_joints.size >= c
         clamped += c > 0
         np.testing.assert_array_equal(fast._S, ref._S)
         limited += fast.limited > 0
