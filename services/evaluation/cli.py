@@ -115,6 +115,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             help=f"{text} (RetargetConfig.{field}; default: the service's){moves}",
         )
     p.add_argument(
+        "--trunk-clearance-width",
+        type=float,
+        default=RetargetConfig().trunk_clearance_width,
+        help="with --trunk-clearance: the half-width [m] of the band over which the push sets in (0: the "
+        "projection onto the clearance; RetargetConfig.trunk_clearance_width; default: the service's)",
+    )
+    p.add_argument(
+        "--trunk-clearance-fast",
+        type=float,
+        default=RetargetConfig().trunk_clearance_fast,
+        help="with --trunk-clearance: the clearance [m] for a fast hand (RetargetConfig.trunk_clearance_fast; "
+        "default: the service's; unset: the full clearance at every speed)",
+    )
+    p.add_argument(
         "--no-ik-check",
         action="store_true",
         help="skip the IK reachability check of the published targets (no reachable_fraction, stuck_s)",
@@ -326,6 +340,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     retarget = {"mode": mapping, "elbow_placement": elbows, "orientation_reference": oref, "elbow_rotation": paper}
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     for k in RETARGET_SWITCHES:
+        retarget[k] = getattr(args, k, getattr(defaults, k))
+    for k in ("trunk_clearance_width", "trunk_clearance_fast"):
         retarget[k] = getattr(args, k, getattr(defaults, k))
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos

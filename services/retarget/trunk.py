@@ -43,8 +43,58 @@ EXIT_COS = 0.3
 #: Newton steps along one exit ray, and the distance tolerance [m] that ends them.
 NEWTON_STEPS = 6
 TOL = 2e-4
-#: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind).
+#: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind; a
+#: ``width`` beyond it widens the lookout with it).
 LOOKOUT = 0.05
+
+
+#: Hand speeds [m/s] up to which the full clearance is kept, and from which the fast one (``fast_clearance``):
+#: resting hands (bow_old, call_normal_001, bow_feminine: 90 % of their frames near the trunk under 0.3 m/s)
+#: keep the solver's dampers idle; a swinging arm (run_happy, dash_*: median 0.6-1.2 m/s there) only needs to
+#: be published outside the rest trunk, which its waist moves anyway.
+SLOW = 0.2
+FAST = 0.6
+#: Time constant [s] of the low-pass on the hand's speed (:class:`HandSpeed`): the clearance follows the arm's
+#: swing, not one frame's finite difference.
+SPEED_TAU = 0.1
+
+
+class HandSpeed:
+    """Low-passed speed [m/s] of one mapped wrist target (before the push), from consecutive positions."""
+
+    def __init__(self, tau: float = SPEED_TAU):
+        self.tau = tau
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (a new stream, a gap): the next sample restarts from speed 0."""
+        self._prev: np.ndarray | None = None
+        self.speed = 0.0
+
+    def update(self, p: np.ndarray, dt: float | None) -> float:
+        """The filtered speed after position p (3,) [m], dt [s] after the previous one (None: restart)."""
+        if self._prev is not None and dt is not None and dt > 0.0:
+            raw = float(np.linalg.norm(p - self._prev)) / dt
+            self.speed += (raw - self.speed) * (1.0 - math.exp(-dt / self.tau))
+        elif dt is None:
+            self.speed = 0.0
+        self._prev = np.array(p, dtype=float)
+        return self.speed
+
+
+def smooth_floor(d: float, c: float, w: float) -> float:
+    """max(d, c) with its corner rounded over d in [c - w, c + w] [m]: d above the band, c below it, and
+    c + (d - c + w)^2 / (4 w) within it, continuous with a continuous slope (C1); the plain max for w = 0.
+
+    The hand's pushed distance to the trunk as a function of its mapped one: a projection (w = 0) turns a hand
+    moving into the trunk along its surface within one frame (its normal velocity jumps to zero); this map
+    slows it down over the band instead. Never below c; d + w / 4 at most (at d = c).
+    """
+    if w <= 0.0 or d >= c + w:
+        return max(d, c)
+    if d <= c - w:
+        return c
+    return c + (d - c + w) ** 2 / (4.0 * w)
 
 
 class TrunkClearance:
@@ -61,6 +111,11 @@ class TrunkClearance:
             (``services.solver.trunk_projection``).
         sca: the robot's self-collision model, whose link proxies are shared (default: one is built, ~3 s);
             it is not changed.
+        width: [m] the half-width of the band over which the push sets in (:func:`smooth_floor`): a hand
+            mapped ``d`` off the trunk is published ``smooth_floor(d, clearance, width)`` off it; 0 (default):
+            the projection onto the clearance.
+        fast_clearance: [m] the clearance for a hand moving at :data:`FAST` or faster (:meth:`clearance_at`;
+            None: the full clearance at every speed).
 
     Raises:
         ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or (with
@@ -73,7 +128,13 @@ class TrunkClearance:
         wrist_frames: dict[str, str],
         waist_carried: bool = False,
         sca: SelfCollisionAvoidance | None = None,
+        width: float = 0.0,
+        fast_clearance: float | None = None,
     ):
+        if width < 0.0:
+            raise ValueError(f"width {width} must be >= 0")
+        #: [m] the half-width of the push's band (0: projection)
+        self.width = float(width)
         sca = sca or SelfCollisionAvoidance(robot)
         m = sca.model
         d = mujoco.MjData(m)  # its own data at the rest pose: the shared model's state is left alone
@@ -117,6 +178,10 @@ class TrunkClearance:
         self.trunk = sorted(trunk)
         #: [m] the clearance kept between the hand and the trunk
         self.clearance = spec.safety_distance + PAD
+        if fast_clearance is not None and not 0.0 < fast_clearance <= self.clearance:
+            raise ValueError(f"fast clearance {fast_clearance} must be in (0, {self.clearance}]")
+        #: [m] the clearance kept for a hand at FAST or more (the full ``clearance`` up to SLOW)
+        self.fast_clearance = self.clearance if fast_clearance is None else float(fast_clearance)
         ms = mujoco.MjSpec()
         for link in self.trunk:  # fixed where the rest posture puts them (pelvis = world)
             b = ms.worldbody.add_body()
@@ -156,7 +221,7 @@ class TrunkClearance:
         self.data.mocap_pos[mocap] = p
         self.data.mocap_quat[mocap] = matrix_to_quat(R)
         mujoco.mj_kinematics(self.model, self.data)
-        cap = self.clearance + LOOKOUT
+        cap = self.clearance + max(LOOKOUT, self.width)
         best, normal, geom = cap, np.zeros(3), -1
         xpos, rbound = self.data.geom_xpos, self.model.geom_rbound
         hand, r_hand = xpos[g_hand], rbound[g_hand]
@@ -184,20 +249,35 @@ class TrunkClearance:
         forward = np.array([1.0, 0.0, 0.0]) - axis[0] * axis  # on the axis itself: out of the front
         return forward / np.linalg.norm(forward)
 
-    def __call__(self, side: str, p: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance`` off the trunk;
-        ``p`` itself (the same object) when it already is."""
+    def clearance_at(self, speed: float) -> float:
+        """The clearance [m] for a hand moving at ``speed`` [m/s]: ``clearance`` up to SLOW, ``fast_clearance``
+        from FAST, a smoothstep in between (continuous in the speed, so the target moves with it smoothly)."""
+        if self.fast_clearance == self.clearance or speed <= SLOW:
+            return self.clearance
+        if speed >= FAST:
+            return self.fast_clearance
+        x = (speed - SLOW) / (FAST - SLOW)
+        return self.clearance + (self.fast_clearance - self.clearance) * x * x * (3.0 - 2.0 * x)
+
+    def __call__(self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0) -> np.ndarray:
+        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance_at(speed)`` off the
+        trunk; ``p`` itself (the same object) when it already is. With a ``width``, the hand is published
+        ``smooth_floor(d, clearance, width)`` off the nearest trunk link instead (``d``: its mapped distance)."""
         out = p
         g_hand = self._hand[side][0]
-        for _ in range(ITERATIONS):
+        c = self.clearance_at(speed)
+        for k in range(ITERATIONS):
             dist, n, g = self.nearest(side, out, R)
-            if dist >= self.clearance - TOL:
+            # the band on the first (mapped) distance only: a pushed hand is already at its goal, and a second
+            # link it meets (a hand between two links) is only kept off by the clearance
+            goal = smooth_floor(dist, c, self.width if k == 0 else 0.0)
+            if goal - dist < TOL:
                 break
             u = self._exit_ray(g, g_hand)
-            for _ in range(NEWTON_STEPS):  # d(out + t u) = clearance, Newton in t (d grows by u.n per metre)
-                out = out + u * ((self.clearance - dist) / max(float(u @ n), EXIT_COS))
+            for _ in range(NEWTON_STEPS):  # d(out + t u) = goal, Newton in t (d grows by u.n per metre)
+                out = out + u * ((goal - dist) / max(float(u @ n), EXIT_COS))
                 dist, n, g2 = self.nearest(side, out, R)
-                if g2 == g and abs(dist - self.clearance) < TOL:
+                if g2 == g and abs(dist - goal) < TOL:
                     break
         return out
 
