@@ -115,13 +115,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             help=f"{text} (RetargetConfig.{field}; default: the service's){moves}",
         )
     p.add_argument(
-        "--trunk-clearance-width",
-        type=float,
-        default=RetargetConfig().trunk_clearance_width,
-        help="with --trunk-clearance: the half-width [m] of the band over which the push sets in (0: the "
-        "projection onto the clearance; RetargetConfig.trunk_clearance_width; default: the service's)",
-    )
-    p.add_argument(
         "--trunk-clearance-fast",
         type=float,
         default=RetargetConfig().trunk_clearance_fast,
@@ -341,8 +334,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     for k in RETARGET_SWITCHES:
         retarget[k] = getattr(args, k, getattr(defaults, k))
-    for k in ("trunk_clearance_width", "trunk_clearance_fast"):
-        retarget[k] = getattr(args, k, getattr(defaults, k))
+    retarget["trunk_clearance_fast"] = getattr(args, "trunk_clearance_fast", defaults.trunk_clearance_fast)
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget

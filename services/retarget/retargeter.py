@@ -157,10 +157,6 @@ class RetargetConfig:
             placed for the pushed wrist. Without it a hand resting on the operator's belly is inside the G1's
             thicker trunk, and a strict HQP with self-collision avoidance reaches it by turning the waist
             (call_normal_001: yaw -40 deg). See the retarget README for the measurement.
-        trunk_clearance_width: [m] with ``trunk_clearance``, the half-width of the band over which the push sets
-            in (:func:`.trunk.smooth_floor`: a hand mapped ``d`` off the trunk is published at
-            max(d, clearance) with the corner rounded over clearance +- width, so its path has no velocity
-            corner where it meets the trunk); 0: the projection onto the clearance.
         trunk_clearance_fast: [m] with ``trunk_clearance``, the clearance kept for a hand moving faster than
             :data:`.trunk.FAST` (low-passed speed of the mapped wrist target; the full clearance below
             :data:`.trunk.SLOW`, a smoothstep between); None: the full clearance at every speed.
@@ -190,7 +186,6 @@ class RetargetConfig:
     wrist_range: bool = False
     forearm_blend: bool = False
     trunk_clearance: bool = False
-    trunk_clearance_width: float = 0.0
     trunk_clearance_fast: float | None = None
 
     def __post_init__(self) -> None:
@@ -281,7 +276,6 @@ class Retargeter(FrameIntake):
             TrunkClearance(
                 self.robot,
                 {s: prof.frames[wrist_of(s)] for s in SIDES},
-                width=self.config.trunk_clearance_width,
                 fast_clearance=self.config.trunk_clearance_fast,
             )
             if self.config.trunk_clearance

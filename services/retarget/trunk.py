@@ -19,6 +19,12 @@ that is the surface normal, and it moves continuously with the target, so a targ
 slides along its surface, and one past the link's middle still leaves by the near side. (The distance's
 own gradient was tried first: where the hand overlaps a link it is a face normal of the polytopes, which
 jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t`` is found by Newton steps.
+
+With ``fast_clearance`` the clearance depends on the hand's speed (:meth:`TrunkClearance.clearance_at`, the
+speed low-passed by :class:`HandSpeed`): the full one for a resting hand, which must keep the solver's dampers
+idle or the waist turns (above), a few millimetres for a swinging arm: a running arm passes the hips where the
+operator's torso twists, the solver turns the robot's waist with it, and a target pushed out of the rest
+trunk by the full clearance is one the arm no longer reaches (retarget README).
 """
 
 from __future__ import annotations
@@ -43,8 +49,7 @@ EXIT_COS = 0.3
 #: Newton steps along one exit ray, and the distance tolerance [m] that ends them.
 NEWTON_STEPS = 6
 TOL = 2e-4
-#: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind; a
-#: ``width`` beyond it widens the lookout with it).
+#: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind).
 LOOKOUT = 0.05
 
 
@@ -82,21 +87,6 @@ class HandSpeed:
         return self.speed
 
 
-def smooth_floor(d: float, c: float, w: float) -> float:
-    """max(d, c) with its corner rounded over d in [c - w, c + w] [m]: d above the band, c below it, and
-    c + (d - c + w)^2 / (4 w) within it, continuous with a continuous slope (C1); the plain max for w = 0.
-
-    The hand's pushed distance to the trunk as a function of its mapped one: a projection (w = 0) turns a hand
-    moving into the trunk along its surface within one frame (its normal velocity jumps to zero); this map
-    slows it down over the band instead. Never below c; d + w / 4 at most (at d = c).
-    """
-    if w <= 0.0 or d >= c + w:
-        return max(d, c)
-    if d <= c - w:
-        return c
-    return c + (d - c + w) ** 2 / (4.0 * w)
-
-
 class TrunkClearance:
     """Pushes wrist targets (robot base frame) out of the robot's trunk, held at the waist's rest posture.
 
@@ -111,9 +101,6 @@ class TrunkClearance:
             (``services.solver.trunk_projection``).
         sca: the robot's self-collision model, whose link proxies are shared (default: one is built, ~3 s);
             it is not changed.
-        width: [m] the half-width of the band over which the push sets in (:func:`smooth_floor`): a hand
-            mapped ``d`` off the trunk is published ``smooth_floor(d, clearance, width)`` off it; 0 (default):
-            the projection onto the clearance.
         fast_clearance: [m] the clearance for a hand moving at :data:`FAST` or faster (:meth:`clearance_at`;
             None: the full clearance at every speed).
 
@@ -128,13 +115,8 @@ class TrunkClearance:
         wrist_frames: dict[str, str],
         waist_carried: bool = False,
         sca: SelfCollisionAvoidance | None = None,
-        width: float = 0.0,
         fast_clearance: float | None = None,
     ):
-        if width < 0.0:
-            raise ValueError(f"width {width} must be >= 0")
-        #: [m] the half-width of the push's band (0: projection)
-        self.width = float(width)
         sca = sca or SelfCollisionAvoidance(robot)
         m = sca.model
         d = mujoco.MjData(m)  # its own data at the rest pose: the shared model's state is left alone
@@ -221,7 +203,7 @@ class TrunkClearance:
         self.data.mocap_pos[mocap] = p
         self.data.mocap_quat[mocap] = matrix_to_quat(R)
         mujoco.mj_kinematics(self.model, self.data)
-        cap = self.clearance + max(LOOKOUT, self.width)
+        cap = self.clearance + LOOKOUT
         best, normal, geom = cap, np.zeros(3), -1
         xpos, rbound = self.data.geom_xpos, self.model.geom_rbound
         hand, r_hand = xpos[g_hand], rbound[g_hand]
@@ -261,23 +243,19 @@ class TrunkClearance:
 
     def __call__(self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0) -> np.ndarray:
         """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance_at(speed)`` off the
-        trunk; ``p`` itself (the same object) when it already is. With a ``width``, the hand is published
-        ``smooth_floor(d, clearance, width)`` off the nearest trunk link instead (``d``: its mapped distance)."""
+        trunk; ``p`` itself (the same object) when it already is."""
         out = p
         g_hand = self._hand[side][0]
         c = self.clearance_at(speed)
-        for k in range(ITERATIONS):
+        for _ in range(ITERATIONS):
             dist, n, g = self.nearest(side, out, R)
-            # the band on the first (mapped) distance only: a pushed hand is already at its goal, and a second
-            # link it meets (a hand between two links) is only kept off by the clearance
-            goal = smooth_floor(dist, c, self.width if k == 0 else 0.0)
-            if goal - dist < TOL:
+            if dist >= c - TOL:
                 break
             u = self._exit_ray(g, g_hand)
-            for _ in range(NEWTON_STEPS):  # d(out + t u) = goal, Newton in t (d grows by u.n per metre)
-                out = out + u * ((goal - dist) / max(float(u @ n), EXIT_COS))
+            for _ in range(NEWTON_STEPS):  # d(out + t u) = c, Newton in t (d grows by u.n per metre)
+                out = out + u * ((c - dist) / max(float(u @ n), EXIT_COS))
                 dist, n, g2 = self.nearest(side, out, R)
-                if g2 == g and abs(dist - goal) < TOL:
+                if g2 == g and abs(dist - c) < TOL:
                     break
         return out
 

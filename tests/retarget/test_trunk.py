@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import targets_without_and_with
 
-from services.retarget.trunk import FAST, SLOW, HandSpeed, TrunkClearance, smooth_floor
+from services.retarget.trunk import FAST, SLOW, HandSpeed, TrunkClearance
 from shared.rotations import quat_to_matrix
 
 #: Distance tolerance [m] of the pushed hand against the clearance (the Newton steps stop within 0.2 mm).
@@ -107,68 +107,27 @@ def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk
         assert moved.any() and np.array_equal(moved, emoved)
 
 
-def test_smooth_floor_known_answers():
-    """max(d, c) with the corner rounded over c +- w: d above the band, c below it, c + w/4 at d = c, C1."""
-    c, w = 0.02, 0.01
-    assert smooth_floor(0.05, c, w) == 0.05
-    assert smooth_floor(-0.03, c, w) == c
-    assert smooth_floor(c, c, w) == pytest.approx(c + w / 4)
-    assert smooth_floor(0.01, c, 0.0) == c and smooth_floor(0.03, c, 0.0) == 0.03  # w = 0: the plain max
-    h = 1e-7
-    for edge, slope in ((c + w, 1.0), (c - w, 0.0)):  # value and slope continuous at the band's edges
-        assert smooth_floor(edge - h, c, w) == pytest.approx(smooth_floor(edge + h, c, w), abs=1e-6)
-        for x in (edge - 2 * h, edge + h):
-            assert (smooth_floor(x + h, c, w) - smooth_floor(x, c, w)) / h == pytest.approx(slope, abs=1e-3)
-    d = np.linspace(-0.05, 0.05, 1001)
-    out = np.array([smooth_floor(x, c, w) for x in d])
-    assert (out >= c).all() and (out >= d).all() and (np.diff(out) >= 0).all()
-
-
 @pytest.fixture(scope="module")
-def smooth(robot14):
+def fast(robot14):
     return TrunkClearance(
-        robot14, {s: robot14.profile.frames[f"{s}_wrist"] for s in ("left", "right")}, width=0.02, fast_clearance=0.003
+        robot14, {s: robot14.profile.frames[f"{s}_wrist"] for s in ("left", "right")}, fast_clearance=0.003
     )
 
 
-def test_a_target_inside_the_trunk_maps_to_the_clearance_with_a_width(smooth, hand_down):
-    """3 cm inside is below the band (clearance - width): published at the clearance; on the surface's clearance
-    itself it is published a quarter width farther out."""
-    p, _ = _front(smooth, hand_down, depth=0.03)
-    out = smooth("left", p, hand_down)
-    assert abs(smooth.nearest("left", out, hand_down)[0] - smooth.clearance) < TOL
-    p, _ = _front(smooth, hand_down, depth=-smooth.clearance)
-    out = smooth("left", p, hand_down)
-    assert abs(smooth.nearest("left", out, hand_down)[0] - (smooth.clearance + smooth.width / 4)) < TOL
-
-
-def test_the_smooth_push_has_no_velocity_corner(trunk, smooth, hand_down):
-    """A target moving straight into the torso's front in 1 mm steps: the projection stops its normal motion
-    within one step (a corner: the step changes by ~1 mm at once); with a 2 cm width the step fades over the
-    band (by 0.025 mm per step), apart from the Newton tolerance (0.2 mm: where the band would move the target
-    by less, it is left where it is)."""
-    p0, normal = _front(trunk, hand_down, depth=-0.05)
-    path = [p0 - normal * (0.001 * k) for k in range(131)]
-    jumps = {}
-    for name, push in (("projection", trunk), ("smooth", smooth)):
-        outs = np.array([push("left", p, hand_down) for p in path])
-        steps = np.diff(outs, axis=0) @ normal  # (130,) signed step along the normal [m]
-        jumps[name] = np.abs(np.diff(steps)).max()
-        assert np.abs(steps).max() < 0.0011
-    assert jumps["projection"] > 0.0007
-    assert jumps["smooth"] < 0.00025
-
-
-def test_a_fast_hand_keeps_the_fast_clearance(smooth, hand_down):
-    """Full clearance up to SLOW, the fast one from FAST, monotone in between; a fast hand 3 cm inside is
-    published at the fast clearance."""
-    assert smooth.clearance_at(0.0) == smooth.clearance_at(SLOW) == smooth.clearance
-    assert smooth.clearance_at(FAST) == smooth.clearance_at(5.0) == smooth.fast_clearance == 0.003
-    mid = [smooth.clearance_at(v) for v in np.linspace(SLOW, FAST, 21)]
-    assert (np.diff(mid) < 0).all()
-    p, _ = _front(smooth, hand_down, depth=0.03)
-    out = smooth("left", p, hand_down, speed=2 * FAST)
-    assert abs(smooth.nearest("left", out, hand_down)[0] - 0.003) < TOL
+def test_a_fast_hand_keeps_the_fast_clearance(trunk, fast, hand_down):
+    """Full clearance up to SLOW, the fast one from FAST, falling continuously in between (no jump of the target
+    as the speed crosses them); a hand 3 cm inside the torso's front is published at the full clearance at rest,
+    at the fast one when fast, along the same normal; without ``fast_clearance`` the speed changes nothing."""
+    assert fast.clearance_at(0.0) == fast.clearance_at(SLOW) == fast.clearance == trunk.clearance
+    assert fast.clearance_at(FAST) == fast.clearance_at(5.0) == fast.fast_clearance == 0.003
+    mid = np.array([fast.clearance_at(v) for v in np.linspace(SLOW, FAST, 401)])
+    assert (np.diff(mid) < 0).all() and np.abs(np.diff(mid)).max() < 1e-4
+    p, normal = _front(fast, hand_down, depth=0.03)
+    for speed, c in ((0.0, fast.clearance), (2 * FAST, 0.003)):
+        out = fast("left", p, hand_down, speed=speed)
+        assert abs(fast.nearest("left", out, hand_down)[0] - c) < TOL
+        assert (out - p) @ normal / np.linalg.norm(out - p) > 0.99
+    assert np.array_equal(trunk("left", p, hand_down, speed=2 * FAST), trunk("left", p, hand_down))
 
 
 def test_hand_speed_follows_a_steady_motion():
