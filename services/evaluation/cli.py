@@ -115,6 +115,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             help=f"{text} (RetargetConfig.{field}; default: the service's){moves}",
         )
     p.add_argument(
+        "--trunk-clearance-fast",
+        type=float,
+        default=RetargetConfig().trunk_clearance_fast,
+        help="with --trunk-clearance: the clearance [m] for a fast hand (RetargetConfig.trunk_clearance_fast; "
+        "default: the service's; unset: the full clearance at every speed)",
+    )
+    p.add_argument(
         "--no-ik-check",
         action="store_true",
         help="skip the IK reachability check of the published targets (no reachable_fraction, stuck_s)",
@@ -327,6 +334,7 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     retarget["velocity_tau"] = getattr(args, "velocity_tau", defaults.velocity_tau)
     for k in RETARGET_SWITCHES:
         retarget[k] = getattr(args, k, getattr(defaults, k))
+    retarget["trunk_clearance_fast"] = getattr(args, "trunk_clearance_fast", defaults.trunk_clearance_fast)
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget

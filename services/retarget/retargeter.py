@@ -53,7 +53,7 @@ from services.retarget.orientation import (
     calibration_orientations,
 )
 from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
-from services.retarget.trunk import TrunkClearance
+from services.retarget.trunk import HandSpeed, TrunkClearance
 from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
 from services.retarget.workspace import DEFAULT_SAMPLES, Shrink, Workspace, load_workspace
@@ -157,6 +157,9 @@ class RetargetConfig:
             placed for the pushed wrist. Without it a hand resting on the operator's belly is inside the G1's
             thicker trunk, and a strict HQP with self-collision avoidance reaches it by turning the waist
             (call_normal_001: yaw -40 deg). See the retarget README for the measurement.
+        trunk_clearance_fast: [m] with ``trunk_clearance``, the clearance kept for a hand moving faster than
+            :data:`.trunk.FAST` (low-passed speed of the mapped wrist target; the full clearance below
+            :data:`.trunk.SLOW`, a smoothstep between); None: the full clearance at every speed.
     """
 
     mode: str = MODES[0]
@@ -183,6 +186,7 @@ class RetargetConfig:
     wrist_range: bool = False
     forearm_blend: bool = False
     trunk_clearance: bool = False
+    trunk_clearance_fast: float | None = None
 
     def __post_init__(self) -> None:
         if self.elbow_placement not in ELBOW_PLACEMENTS:
@@ -269,10 +273,16 @@ class Retargeter(FrameIntake):
         )
         #: the push of wrist targets out of the trunk (``trunk_clearance``)
         self.trunk: TrunkClearance | None = (
-            TrunkClearance(self.robot, {s: prof.frames[wrist_of(s)] for s in SIDES})
+            TrunkClearance(
+                self.robot,
+                {s: prof.frames[wrist_of(s)] for s in SIDES},
+                fast_clearance=self.config.trunk_clearance_fast,
+            )
             if self.config.trunk_clearance
             else None
         )
+        #: side -> the low-passed speed of its mapped wrist target, which sets the push's clearance
+        self._hand_speed = {s: HandSpeed() for s in SIDES}
         #: side -> rows of its wrist and elbow in the per-frame target arrays (``TARGET_NAMES`` order)
         self._arm_rows = {s: (TARGET_NAMES.index(wrist_of(s)), TARGET_NAMES.index(elbow_of(s))) for s in SIDES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
@@ -317,6 +327,8 @@ class Retargeter(FrameIntake):
             arm.reset()
         for wr in getattr(self, "wrist_ranges", {}).values():
             wr.reset()
+        for hs in getattr(self, "_hand_speed", {}).values():
+            hs.reset()
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -612,16 +624,28 @@ class Retargeter(FrameIntake):
                 R[ie] = elbow_R
 
     def _clear_trunk(
-        self, frame: HumanFrame, P: np.ndarray, R: np.ndarray, H: np.ndarray, valid: list[bool], mapped
+        self,
+        frame: HumanFrame,
+        P: np.ndarray,
+        R: np.ndarray,
+        H: np.ndarray,
+        valid: list[bool],
+        mapped,
+        dt: float | None,
     ) -> None:
         """Per arm with a valid wrist: the wrist row of ``P`` (4, 3) [m] pushed out of the trunk with its hand at
         ``R``'s wrist row (:class:`.trunk.TrunkClearance`), in place, and the elbow row placed again for it (the
-        swivel elbow hangs at the forearm length from the wrist). The wrist orientation stays as mapped."""
+        swivel elbow hangs at the forearm length from the wrist). The wrist orientation stays as mapped; the
+        clearance follows the mapped wrist's low-passed speed (``trunk_clearance_fast``); dt [s] since the previous
+        frame (None or past ``max_gap``: the speed restarts)."""
+        gap = dt is None or dt > self.config.max_gap
         for side in SIDES:
             iw, ie = self._arm_rows[side]
             if not valid[iw]:
+                self._hand_speed[side].reset()
                 continue
-            p = self.trunk(side, P[iw], R[iw])
+            speed = self._hand_speed[side].update(P[iw], None if gap else dt)
+            p = self.trunk(side, P[iw], R[iw], speed)
             if p is P[iw]:
                 continue
             P[iw] = p
@@ -684,7 +708,7 @@ class Retargeter(FrameIntake):
                 if not valid[i]:
                     R[i] = self._held_R[i]
         if self.trunk is not None:
-            self._clear_trunk(frame, P, R, H, valid, mapped)
+            self._clear_trunk(frame, P, R, H, valid, mapped, dt)
         for side, wr in self.wrist_ranges.items():
             iw, ie = self._arm_rows[side]
             if valid[iw] and valid[ie]:  # (the forearm needs both; wrist-only arms are published as mapped)

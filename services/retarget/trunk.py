@@ -19,6 +19,12 @@ that is the surface normal, and it moves continuously with the target, so a targ
 slides along its surface, and one past the link's middle still leaves by the near side. (The distance's
 own gradient was tried first: where the hand overlaps a link it is a face normal of the polytopes, which
 jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t`` is found by Newton steps.
+
+With ``fast_clearance`` the clearance depends on the hand's speed (:meth:`TrunkClearance.clearance_at`, the
+speed low-passed by :class:`HandSpeed`): the full one for a resting hand, which must keep the solver's dampers
+idle or the waist turns (above), a few millimetres for a swinging arm: a running arm passes the hips where the
+operator's torso twists, the solver turns the robot's waist with it, and a target pushed out of the rest
+trunk by the full clearance is one the arm no longer reaches (retarget README).
 """
 
 from __future__ import annotations
@@ -47,6 +53,40 @@ TOL = 2e-4
 LOOKOUT = 0.05
 
 
+#: Hand speeds [m/s] up to which the full clearance is kept, and from which the fast one (``fast_clearance``):
+#: resting hands (bow_old, call_normal_001, bow_feminine: 90 % of their frames near the trunk under 0.3 m/s)
+#: keep the solver's dampers idle; a swinging arm (run_happy, dash_*: median 0.6-1.2 m/s there) only needs to
+#: be published outside the rest trunk, which its waist moves anyway.
+SLOW = 0.2
+FAST = 0.6
+#: Time constant [s] of the low-pass on the hand's speed (:class:`HandSpeed`): the clearance follows the arm's
+#: swing, not one frame's finite difference.
+SPEED_TAU = 0.1
+
+
+class HandSpeed:
+    """Low-passed speed [m/s] of one mapped wrist target (before the push), from consecutive positions."""
+
+    def __init__(self, tau: float = SPEED_TAU):
+        self.tau = tau
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (a new stream, a gap): the next sample restarts from speed 0."""
+        self._prev: np.ndarray | None = None
+        self.speed = 0.0
+
+    def update(self, p: np.ndarray, dt: float | None) -> float:
+        """The filtered speed after position p (3,) [m], dt [s] after the previous one (None: restart)."""
+        if self._prev is not None and dt is not None and dt > 0.0:
+            raw = float(np.linalg.norm(p - self._prev)) / dt
+            self.speed += (raw - self.speed) * (1.0 - math.exp(-dt / self.tau))
+        elif dt is None:
+            self.speed = 0.0
+        self._prev = np.array(p, dtype=float)
+        return self.speed
+
+
 class TrunkClearance:
     """Pushes wrist targets (robot base frame) out of the robot's trunk, held at the waist's rest posture.
 
@@ -61,6 +101,8 @@ class TrunkClearance:
             (``services.solver.trunk_projection``).
         sca: the robot's self-collision model, whose link proxies are shared (default: one is built, ~3 s);
             it is not changed.
+        fast_clearance: [m] the clearance for a hand moving at :data:`FAST` or faster (:meth:`clearance_at`;
+            None: the full clearance at every speed).
 
     Raises:
         ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or (with
@@ -73,6 +115,7 @@ class TrunkClearance:
         wrist_frames: dict[str, str],
         waist_carried: bool = False,
         sca: SelfCollisionAvoidance | None = None,
+        fast_clearance: float | None = None,
     ):
         sca = sca or SelfCollisionAvoidance(robot)
         m = sca.model
@@ -117,6 +160,10 @@ class TrunkClearance:
         self.trunk = sorted(trunk)
         #: [m] the clearance kept between the hand and the trunk
         self.clearance = spec.safety_distance + PAD
+        if fast_clearance is not None and not 0.0 < fast_clearance <= self.clearance:
+            raise ValueError(f"fast clearance {fast_clearance} must be in (0, {self.clearance}]")
+        #: [m] the clearance kept for a hand at FAST or more (the full ``clearance`` up to SLOW)
+        self.fast_clearance = self.clearance if fast_clearance is None else float(fast_clearance)
         ms = mujoco.MjSpec()
         for link in self.trunk:  # fixed where the rest posture puts them (pelvis = world)
             b = ms.worldbody.add_body()
@@ -184,20 +231,31 @@ class TrunkClearance:
         forward = np.array([1.0, 0.0, 0.0]) - axis[0] * axis  # on the axis itself: out of the front
         return forward / np.linalg.norm(forward)
 
-    def __call__(self, side: str, p: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance`` off the trunk;
-        ``p`` itself (the same object) when it already is."""
+    def clearance_at(self, speed: float) -> float:
+        """The clearance [m] for a hand moving at ``speed`` [m/s]: ``clearance`` up to SLOW, ``fast_clearance``
+        from FAST, a smoothstep in between (continuous in the speed, so the target moves with it smoothly)."""
+        if self.fast_clearance == self.clearance or speed <= SLOW:
+            return self.clearance
+        if speed >= FAST:
+            return self.fast_clearance
+        x = (speed - SLOW) / (FAST - SLOW)
+        return self.clearance + (self.fast_clearance - self.clearance) * x * x * (3.0 - 2.0 * x)
+
+    def __call__(self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0) -> np.ndarray:
+        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance_at(speed)`` off the
+        trunk; ``p`` itself (the same object) when it already is."""
         out = p
         g_hand = self._hand[side][0]
+        c = self.clearance_at(speed)
         for _ in range(ITERATIONS):
             dist, n, g = self.nearest(side, out, R)
-            if dist >= self.clearance - TOL:
+            if dist >= c - TOL:
                 break
             u = self._exit_ray(g, g_hand)
-            for _ in range(NEWTON_STEPS):  # d(out + t u) = clearance, Newton in t (d grows by u.n per metre)
-                out = out + u * ((self.clearance - dist) / max(float(u @ n), EXIT_COS))
+            for _ in range(NEWTON_STEPS):  # d(out + t u) = c, Newton in t (d grows by u.n per metre)
+                out = out + u * ((c - dist) / max(float(u @ n), EXIT_COS))
                 dist, n, g2 = self.nearest(side, out, R)
-                if g2 == g and abs(dist - self.clearance) < TOL:
+                if g2 == g and abs(dist - c) < TOL:
                     break
         return out
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import targets_without_and_with
 
-from services.retarget.trunk import TrunkClearance
+from services.retarget.trunk import FAST, SLOW, HandSpeed, TrunkClearance
 from shared.rotations import quat_to_matrix
 
 #: Distance tolerance [m] of the pushed hand against the clearance (the Newton steps stop within 0.2 mm).
@@ -105,3 +105,60 @@ def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk
         elbows = [np.array([tt.targets[f"{side}_elbow"].p for tt in out[on]]) for on in (False, True)]
         emoved = np.linalg.norm(elbows[1] - elbows[0], axis=1) > 0
         assert moved.any() and np.array_equal(moved, emoved)
+
+
+@pytest.fixture(scope="module")
+def fast(robot14):
+    return TrunkClearance(
+        robot14, {s: robot14.profile.frames[f"{s}_wrist"] for s in ("left", "right")}, fast_clearance=0.003
+    )
+
+
+def test_a_fast_hand_keeps_the_fast_clearance(trunk, fast, hand_down):
+    """Full clearance up to SLOW, the fast one from FAST, falling continuously in between (no jump of the target
+    as the speed crosses them); a hand 3 cm inside the torso's front is published at the full clearance at rest,
+    at the fast one when fast, along the same normal; without ``fast_clearance`` the speed changes nothing."""
+    assert fast.clearance_at(0.0) == fast.clearance_at(SLOW) == fast.clearance == trunk.clearance
+    assert fast.clearance_at(FAST) == fast.clearance_at(5.0) == fast.fast_clearance == 0.003
+    mid = np.array([fast.clearance_at(v) for v in np.linspace(SLOW, FAST, 401)])
+    assert (np.diff(mid) < 0).all() and np.abs(np.diff(mid)).max() < 1e-4
+    p, normal = _front(fast, hand_down, depth=0.03)
+    for speed, c in ((0.0, fast.clearance), (2 * FAST, 0.003)):
+        out = fast("left", p, hand_down, speed=speed)
+        assert abs(fast.nearest("left", out, hand_down)[0] - c) < TOL
+        assert (out - p) @ normal / np.linalg.norm(out - p) > 0.99
+    assert np.array_equal(trunk("left", p, hand_down, speed=2 * FAST), trunk("left", p, hand_down))
+
+
+def test_hand_speed_follows_a_steady_motion():
+    """1 m/s in 10 ms steps: the low-passed speed rises towards 1 m/s (within 1 % after 5 time constants) and
+    restarts from 0 after a reset or a gap (dt None)."""
+    hs = HandSpeed(tau=0.1)
+    assert hs.update(np.zeros(3), 0.01) == 0.0  # the first sample has nothing to difference against
+    speeds = [hs.update(np.array([0.01 * k, 0.0, 0.0]), 0.01) for k in range(1, 51)]
+    assert speeds[0] == pytest.approx(1.0 - np.exp(-0.1))
+    assert speeds[-1] == pytest.approx(1.0, abs=0.01)
+    assert hs.update(np.array([0.6, 0.0, 0.0]), None) == 0.0
+    hs.reset()
+    assert hs.update(np.ones(3), 0.01) == 0.0
+
+
+def test_published_velocities_are_those_of_the_pushed_path(bvh_clips, robot14, workspace):
+    """call_normal_001 with the push (and no velocity low-pass): each published wrist velocity is the finite
+    difference of the published (pushed) positions, not of the operator's plain ones, so the solver's feed-forward
+    follows the path it is asked to track."""
+    from services.evaluation.runner import clip_targets
+    from services.ingest import load_clip
+    from services.retarget.retargeter import RetargetConfig, Retargeter
+
+    clip = load_clip(next(p for p in bvh_clips if "call_normal_001" in p.name))
+    cfg = RetargetConfig(trunk_clearance=True, velocity_tau=0.0)
+    out = clip_targets(clip, Retargeter(cfg, workspace=workspace, robot=robot14))
+    plain = clip_targets(clip, Retargeter(RetargetConfig(velocity_tau=0.0), workspace=workspace, robot=robot14))
+    t = np.array([tt.hdr.stamp for tt in out])
+    P = np.array([tt.targets["left_wrist"].p for tt in out])
+    V = np.array([tt.targets["left_wrist"].v for tt in out])
+    fd = np.diff(P, axis=0) / np.diff(t)[:, None]
+    moved = np.linalg.norm(P - np.array([tt.targets["left_wrist"].p for tt in plain]), axis=1) > 1e-4
+    assert moved.sum() > 10
+    np.testing.assert_allclose(V[1:], fd, atol=1e-9)
