@@ -28,7 +28,7 @@ log = logging.getLogger("mimic.posture")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from services.posture.train import TrainConfig  # numpy only (torch is imported when training)
+    from services.posture.train import ELBOW_AUGMENT_DEG, TrainConfig  # numpy only (torch is imported when training)
 
     sub = parser.add_subparsers(dest="posture_command", metavar="ACTION", required=True)
     t = sub.add_parser("train", help="train the policy (BC + online relabelling) on clips; needs mimic[train]")
@@ -51,9 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     t.add_argument("--epochs", type=int, default=80, help="training epochs per fit (chosen on validation clips)")
     t.add_argument("--input-noise", type=float, default=0.0,
                    help="std of the noise on the encoder's normalised inputs in training (regulariser)")  # fmt: skip
-    t.add_argument("--augment-deg", type=float, default=0.0,
+    t.add_argument("--augment-deg", type=float, default=None,
                    help="elbow kind: also train the encoder on each sample's whole arm turned about the shoulder "
-                   "by a random yaw and pitch within this many degrees, fresh every epoch (0: off)")  # fmt: skip
+                   f"by a random yaw and pitch within this many degrees, fresh every epoch (0: off; default: "
+                   f"{ELBOW_AUGMENT_DEG:g} for the elbow kind, 0 for the others)")  # fmt: skip
     t.add_argument("--augment-pitch-deg", type=float, default=None,
                    help="pitch bound of those turns [deg] (default: --augment-deg; 0: yaw only)")  # fmt: skip
     t.add_argument("--augment-reach", type=float, default=0.0,
@@ -144,9 +145,11 @@ def _train(args: argparse.Namespace) -> int:
     from services.posture.policy import save_policy
     from services.posture.relabel import ExperimentConfig, relabel_experiment
     from services.posture.rollout import POSTURE_RETARGET, ArmsModel, RolloutConfig, prepare_clip
-    from services.posture.train import TrainConfig, require_torch
+    from services.posture.train import ELBOW_AUGMENT_DEG, TrainConfig, require_torch
     from shared.robot.pinocchio_model import build_robot_model
 
+    if args.augment_deg is None:
+        args.augment_deg = ELBOW_AUGMENT_DEG if args.action_kind == "elbow" else 0.0
     if (args.augment_deg > 0.0 or args.augment_reach > 0.0) and args.action_kind != "elbow":
         raise SystemExit("--augment-deg/--augment-reach move elbow labels: they need --action-kind elbow")
     try:

@@ -33,6 +33,11 @@ from shared.targets import SIDES
 log = logging.getLogger("mimic.posture")
 
 TORCH_VERSION = "2.13.0"
+#: ``mimic posture train``'s default ``augment_deg`` for the elbow kind (the others cannot turn their labels):
+#: 4-fold cross-validation by clip (every clip held out once, seeds 0-2, session 12) brought the held-out
+#: wrist-only elbow mean from 3.603 to 3.396 cm (0.497x -> 0.469x the rest posture's), lower on every fold, the
+#: seeds' spread from 0.14 to 0.03 cm; the validation split of session 9 had it 0.06 cm better, within noise.
+ELBOW_AUGMENT_DEG = 15.0
 #: Fewest labelled samples per arm worth fitting.
 MIN_SAMPLES = 32
 
@@ -85,9 +90,9 @@ class TrainConfig:
         augment_deg: elbow kind only: every epoch, each sample also appears with its whole arm (hand pose and
             elbow label) turned about the robot's shoulder centre by a fresh random yaw and pitch in
             ±augment_deg [deg] (:mod:`.augment`); the encoder learns from both, the decoder (whose joint
-            inputs would not turn with the arm) from the originals only. 0: off. Off by default: on the
-            validation split (README, session 9) 15° gave 2.130 cm of elbow against 2.188 over three seeds,
-            within the seeds' spread (better on two clips, worse on guide_active).
+            inputs would not turn with the arm) from the originals only. 0: off (this class's default, for the
+            kinds it cannot serve); ``mimic posture train`` turns it on for the elbow kind
+            (:data:`ELBOW_AUGMENT_DEG`, chosen by cross-validation).
         augment_pitch_deg: the pitch bound [deg] of those turns (None: ``augment_deg``; 0: yaw only, turns
             about the vertical, which keep the arm's pose against gravity).
         augment_reach: with it (or alone), the turned copies' shoulder-wrist distance is also scaled by a

@@ -37,3 +37,16 @@ def test_a_fold_outside_the_range_is_a_one_line_error():
     )
     assert r.returncode != 0
     assert r.stderr.strip().splitlines()[-1] == "--holdout-fold must be in 0..3 for --holdout-every 4, got -1"
+
+
+def test_the_augmentation_default_is_the_elbow_kinds_only():
+    """``--augment-deg`` defaults to the elbow kind's turns; a kind that cannot turn its labels gets none and is
+    not refused (this run stops at the fold check, which comes after the augmentation check)."""
+    cmd = [sys.executable, "-m", "services.cli", "posture", "train", *NAMES[:4], "--out", "x.npz", "--json", "x.json"]
+    for kind in ("posture", "swivel", "velocity"):
+        r = subprocess.run([*cmd, "--action-kind", kind, "--holdout-fold", "7"], capture_output=True, text=True,
+                           timeout=120)  # fmt: skip
+        assert r.returncode != 0 and r.stderr.strip().splitlines()[-1].startswith("--holdout-fold must be"), r.stderr
+    r = subprocess.run([*cmd, "--action-kind", "posture", "--augment-deg", "15", "--holdout-fold", "7"],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode != 0 and "--action-kind elbow" in r.stderr

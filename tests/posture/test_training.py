@@ -215,6 +215,8 @@ def test_posture_train_cli_writes_model_report_and_curve(smallest, tmp_path):
     assert [W.shape for W, _ in pol._dec64[0]] == [(17, 32), (32, 6)]
     # the gate factor is recorded and gives the thresholds from the training gaps' p99 (floor 3 cm)
     assert meta["train"]["gate_factor"] == 3.0
+    # the elbow kind's encoder learns from turned copies of the arms by default (chosen by cross-validation)
+    assert meta["train"]["augment_deg"] == 15.0
     for s in ("left", "right"):
         st = meta["gate_stats"][s]
         assert st["factor"] == 3.0 and meta["gate_threshold"][s] == pytest.approx(max(3.0 * st["gap_p99_m"], 0.03))
