@@ -81,6 +81,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="K [1/s] of the posture kind and of the elbow kind's rollouts (default 20)")  # fmt: skip
     t.add_argument("--no-mirror", dest="mirror", action="store_false",
                    help="do not add each arm's demonstrations, mirrored, to the other arm's")  # fmt: skip
+    c = sub.add_parser("cv", help="k-fold cross-validation by clip: train each fold, score its held-out clips, pool")
+    c.add_argument("clips", nargs="+", help="BVH/C3D clips (every clip is held out once)")
+    c.add_argument("--out-dir", required=True, help="folder for the models, training reports and eval JSONs")
+    c.add_argument("--json", default=None, help="also write the report here (it is always in OUT_DIR/cv.json)")
+    c.add_argument("--folds", type=int, default=4, help="k: the folds of --holdout-every k")
+    c.add_argument("--seeds", default="0,1,2", help="training seeds, comma list (the pooled figures are per seed)")
+    c.add_argument("--train-args", default="", help="extra flags for every 'mimic posture train' (quoted)")
+    c.add_argument("--eval-args", default="", help="extra flags for every 'mimic eval' (quoted)")
     from services.posture import bench
 
     bench.add_arguments(sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON"))
@@ -258,7 +266,27 @@ def _gate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cv(args: argparse.Namespace) -> int:
+    from services.posture.cv import run_cv
+
+    if args.folds < 2:
+        raise SystemExit(f"--folds must be at least 2, got {args.folds}")
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+    except ValueError:
+        raise SystemExit(f"--seeds must be a comma list of integers, got {args.seeds!r}") from None
+    try:
+        report = run_cv(args.clips, Path(args.out_dir), args.folds, seeds, args.train_args, args.eval_args)
+    except RuntimeError as e:
+        raise SystemExit(str(e)) from None
+    text = json.dumps({k: report[k] for k in ("folds", "seeds", "pooled", "pooled_mean")}, indent=2)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+    sys.stdout.write(text + "\n")
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
     from services.posture import bench
 
-    return {"train": _train, "bench": bench.main, "gate": _gate}[args.posture_command](args)
+    return {"train": _train, "cv": _cv, "bench": bench.main, "gate": _gate}[args.posture_command](args)

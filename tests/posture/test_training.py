@@ -247,3 +247,32 @@ def test_posture_train_cli_records_the_augmentation_and_encoder_depth(smallest, 
     bad = subprocess.run([*cmd[:-10], "--augment-deg", "10", "--action-kind", "posture"], capture_output=True,
                          text=True, timeout=600)  # fmt: skip
     assert bad.returncode != 0 and "--action-kind elbow" in bad.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_posture_cv_holds_every_clip_out_once_and_pools_the_folds_by_ticks(smallest, tmp_path):
+    """``mimic posture cv`` on two clips and two folds (tiny networks): each clip is scored by the model that did
+    not train on it, and the pooled figures are the folds' tick-weighted means."""
+    report_path = tmp_path / "cv_report.json"
+    cmd = [sys.executable, "-m", "services.cli", "posture", "cv", *map(str, smallest), "--out-dir", str(tmp_path),
+           "--folds", "2", "--seeds", "0", "--json", str(report_path),
+           "--train-args", "--epochs 2 --hidden 8 --relabel-rounds 1 --chunk-s 1.5"]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stderr[-2000:]
+    report = json.loads(report_path.read_text())
+    assert json.loads(res.stdout)["pooled"] == report["pooled"]
+    held = [r["test_clips"] for r in report["runs"]]
+    assert sorted(c for h in held for c in h) == sorted(p.name for p in smallest)  # each clip once
+    for run in report["runs"]:
+        model = PosturePolicy.load(tmp_path / f"f{run['fold']}_s0.npz")
+        assert model.meta["test_clips"] == run["test_clips"]  # scored by the model that held it out
+        assert not set(model.meta["train_clips"]) & set(run["test_clips"])
+    pooled = report["pooled"]["0"]
+    ticks = [r["ticks"] for r in report["runs"]]
+    assert pooled["ticks"] == sum(ticks)
+    for key in ("policy_elbow_cm", "rest_elbow_cm", "full_elbow_cm", "policy_wrist_cm"):
+        assert pooled[key] == pytest.approx(sum(r[key] * n for r, n in zip(report["runs"], ticks)) / sum(ticks))
+    assert pooled["policy_over_rest"] == pytest.approx(pooled["policy_elbow_cm"] / pooled["rest_elbow_cm"])
+    bad = subprocess.run([*cmd[:9], "--seeds", "0,x"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode != 0 and bad.stderr.strip().splitlines()[-1].startswith("--seeds must be a comma list")
