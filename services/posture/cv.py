@@ -77,9 +77,10 @@ def run_cv(
             if not model.exists():
                 _run([*mimic, "posture", "train", *clips, "--holdout-every", str(folds), "--holdout-fold", str(fold),
                       "--seed", str(seed), "--out", str(model), "--json", str(tag.with_name(tag.name + "_train.json")),
-                      *shlex.split(train_args)])  # fmt: skip
+                      *shlex.split(train_args)], f"posture train, fold {fold}, seed {seed}")  # fmt: skip
             _run([*mimic, "eval", *test, "--wrist-only", "--posture-policy", str(model), "--algos", "hqp-nullspace",
-                  "--no-sim", "--json", str(ev), *shlex.split(eval_args)])  # fmt: skip
+                  "--no-sim", "--json", str(ev), *shlex.split(eval_args)],
+                 f"eval, fold {fold}, seed {seed}")  # fmt: skip
             reports[seed].append(json.loads(ev.read_text()))
             names = [Path(p).name for p in test]
             runs.append({"fold": fold, "seed": seed, "test_clips": names, **pool(reports[seed][-1:])})
@@ -94,10 +95,10 @@ def run_cv(
     return report
 
 
-def _run(cmd: list[str]) -> None:
-    """Run one mimic command; its output is kept only when it fails."""
-    log.info("%s", " ".join(cmd[2:8]) + " ...")
+def _run(cmd: list[str], what: str) -> None:
+    """Run one mimic command (``what`` names it in the log); its output is kept only when it fails."""
+    log.info("mimic %s", what)
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         tail = "\n".join((res.stderr or res.stdout).strip().splitlines()[-5:])
-        raise RuntimeError(f"{' '.join(cmd[3:5])} failed (exit {res.returncode}):\n{tail}")
+        raise RuntimeError(f"mimic {what} failed (exit {res.returncode}):\n{tail}")
