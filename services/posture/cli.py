@@ -89,6 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c.add_argument("--seeds", default="0,1,2", help="training seeds, comma list (the pooled figures are per seed)")
     c.add_argument("--train-args", default="", help="extra flags for every 'mimic posture train' (quoted)")
     c.add_argument("--eval-args", default="", help="extra flags for every 'mimic eval' (quoted)")
+    c.add_argument("--resume", action="store_true",
+                   help="reuse the models in OUT_DIR (an interrupted run, same --train-args)")  # fmt: skip
     from services.posture import bench
 
     bench.add_arguments(sub.add_parser("bench", help="time the numpy inference of one tick (both arms), JSON"))
@@ -276,7 +278,7 @@ def _cv(args: argparse.Namespace) -> int:
     except ValueError:
         raise SystemExit(f"--seeds must be a comma list of integers, got {args.seeds!r}") from None
     try:
-        report = run_cv(args.clips, Path(args.out_dir), args.folds, seeds, args.train_args, args.eval_args)
+        report = run_cv(args.clips, Path(args.out_dir), args.folds, seeds, args.train_args, args.eval_args, args.resume)
     except RuntimeError as e:
         raise SystemExit(str(e)) from None
     text = json.dumps({k: report[k] for k in ("folds", "seeds", "pooled", "pooled_mean")}, indent=2)

@@ -50,13 +50,21 @@ def pool(evals: list[dict]) -> dict:
 
 
 def run_cv(
-    clips: list[str], out_dir: Path, folds: int, seeds: list[int], train_args: str = "", eval_args: str = ""
+    clips: list[str],
+    out_dir: Path,
+    folds: int,
+    seeds: list[int],
+    train_args: str = "",
+    eval_args: str = "",
+    resume: bool = False,
 ) -> dict:
     """Train and score every (fold, seed); returns the report (also written to ``out_dir/cv.json``).
 
     Args:
         clips: BVH/C3D paths (the folds are ``split_clips``').
-        out_dir: models, training reports and eval JSONs go here (``f<fold>_s<seed>``); existing models are reused.
+        out_dir: models, training reports and eval JSONs go here (``f<fold>_s<seed>``).
+        resume: reuse a fold's model when its file exists (an interrupted run); otherwise every model is trained
+            anew, so a changed ``train_args`` never meets a stale model.
         folds: k of the k-fold split (``--holdout-every``).
         train_args, eval_args: extra flags for every ``mimic posture train`` / ``mimic eval`` call (shell syntax).
 
@@ -74,7 +82,7 @@ def run_cv(
         for seed in seeds:
             tag = out_dir / f"f{fold}_s{seed}"
             model, ev = tag.with_suffix(".npz"), tag.with_name(tag.name + "_eval.json")
-            if not model.exists():
+            if not (resume and model.exists()):
                 _run([*mimic, "posture", "train", *clips, "--holdout-every", str(folds), "--holdout-fold", str(fold),
                       "--seed", str(seed), "--out", str(model), "--json", str(tag.with_name(tag.name + "_train.json")),
                       *shlex.split(train_args)], f"posture train, fold {fold}, seed {seed}")  # fmt: skip

@@ -276,3 +276,9 @@ def test_posture_cv_holds_every_clip_out_once_and_pools_the_folds_by_ticks(small
     assert pooled["policy_over_rest"] == pytest.approx(pooled["policy_elbow_cm"] / pooled["rest_elbow_cm"])
     bad = subprocess.run([*cmd[:9], "--seeds", "0,x"], capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and bad.stderr.strip().splitlines()[-1].startswith("--seeds must be a comma list")
+    # --resume reuses the models (an interrupted run) and scores them again to the same figures
+    models = {p: p.stat().st_mtime_ns for p in tmp_path.glob("f*_s0.npz")}
+    again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert {p: p.stat().st_mtime_ns for p in models} == models
+    assert json.loads(again.stdout)["pooled"] == report["pooled"]
