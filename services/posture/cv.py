@@ -63,10 +63,11 @@ def run_cv(
     Args:
         clips: BVH/C3D paths (the folds are ``split_clips``').
         out_dir: models, training reports and eval JSONs go here (``f<fold>_s<seed>``).
+        folds: k of the k-fold split (``--holdout-every``).
+        seeds: training seeds; the pooled figures are per seed.
+        train_args, eval_args: extra flags for every ``mimic posture train`` / ``mimic eval`` call (shell syntax).
         resume: reuse a fold's model when its file exists (an interrupted run); otherwise every model is trained
             anew, so a changed ``train_args`` never meets a stale model.
-        folds: k of the k-fold split (``--holdout-every``).
-        train_args, eval_args: extra flags for every ``mimic posture train`` / ``mimic eval`` call (shell syntax).
 
     Raises:
         RuntimeError: a train or eval run failed (its last output lines in the message).
