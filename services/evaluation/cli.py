@@ -119,7 +119,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=RetargetConfig().trunk_clearance_fast,
         help="with --trunk-clearance: the clearance [m] for a fast hand (RetargetConfig.trunk_clearance_fast; "
-        "default: the service's; unset: the full clearance at every speed)",
+        "default: the service's; the full clearance, 0.02 on the G1, keeps it at every speed)",
     )
     p.add_argument(
         "--no-ik-check",
@@ -142,7 +142,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--paper",
         action="store_true",
         help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows with their "
-        "orientations (the elbow pose) on level 2, eq. 4 against the rest pose",
+        "orientations (the elbow pose) on level 2, eq. 4 against the rest pose, no trunk push",
     )
     p.add_argument(
         "--wrist-only",
@@ -297,7 +297,7 @@ def _compare_summary(clips: list[dict]) -> dict:
 def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
     """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
     ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows with their orientations on
-    level 2 (the elbow pose) and eq. 4 against the rest pose. The retargeter otherwise runs with the
+    level 2 (the elbow pose), eq. 4 against the rest pose and no trunk push. The retargeter otherwise runs with the
     service's own settings (``RetargetConfig``)."""
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algos if a not in ALGORITHMS and a not in PEERS]
@@ -335,6 +335,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     for k in RETARGET_SWITCHES:
         retarget[k] = getattr(args, k, getattr(defaults, k))
     retarget["trunk_clearance_fast"] = getattr(args, "trunk_clearance_fast", defaults.trunk_clearance_fast)
+    if paper:
+        retarget["trunk_clearance"] = False  # the paper publishes its eqs. 1-3 as they are
     # The operator's upper arm (seed 004) only where something reads it: it costs ~2 ms per frame.
     retarget["upper_arms"] = wrist_only or "clik-mimicry" in algos
     return algos, solver, wqp_weights, retarget

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from services.retarget.trunk import TrunkClearance
+from services.retarget.trunk import NoTrunkError, TrunkClearance
 from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import quat_to_matrix
@@ -33,7 +33,7 @@ SIDES = ("left", "right")
 #: Hand-to-trunk distance [m] below which a wrist target counts as inside the body, hence not reachable.
 BODY_TOL = 0.0
 #: profile source -> its trunk distance (built once: the proxies take ~1-3 s)
-_TRUNKS: dict[str, TrunkClearance] = {}
+_TRUNKS: dict[str, TrunkClearance | None] = {}
 
 
 @dataclass
@@ -173,13 +173,14 @@ class ReachabilityReport:
 
 
 def trunk_for(robot: RobotModel) -> TrunkClearance | None:
-    """The hand-to-trunk distance of a robot at its waist's rest (cached per profile), None without a
-    ``[collision]`` table."""
-    if robot.profile.collision is None:
-        return None
+    """The hand-to-trunk distance of a robot at its waist's rest (cached per profile), None when its profile gives
+    no trunk (:class:`~services.retarget.trunk.NoTrunkError`)."""
     key = f"{robot.profile.source}:{','.join(robot.joint_names)}"
     if key not in _TRUNKS:
-        _TRUNKS[key] = TrunkClearance(robot, {s: robot.profile.frames[f"{s}_wrist"] for s in SIDES})
+        try:
+            _TRUNKS[key] = TrunkClearance(robot, {s: robot.profile.frames[f"{s}_wrist"] for s in SIDES})
+        except NoTrunkError:
+            _TRUNKS[key] = None
     return _TRUNKS[key]
 
 

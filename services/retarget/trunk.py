@@ -13,12 +13,13 @@ with ``d`` the signed distance [m] between the robot hand, posed at the target (
 hand included), and the nearest trunk link at the waist's rest posture, and ``c`` the clearance (the
 profile's collision safety distance plus :data:`PAD`). Distances are MuJoCo's ``mj_geomDistance`` on the
 solver's link proxies (:mod:`services.solver.collision`: convex polytopes holding each link's mesh),
-penetration included. The exit direction ``u`` runs from the nearest point of the link's central axis (its
-proxy's longest principal axis, within its extent) through the hand's centre: for a hand beside the torso
-that is the surface normal, and it moves continuously with the target, so a target sliding into the body
-slides along its surface, and one past the link's middle still leaves by the near side. (The distance's
-own gradient was tried first: where the hand overlaps a link it is a face normal of the polytopes, which
-jumps between faces as the target moves, 5-14 mm between frames on bow_old.) ``t`` is found by Newton steps.
+penetration included. The exit direction ``u`` runs from the nearest point of the central axis of the rigid
+body the link is on (the longest principal axis of that body's trunk proxies together, within their extent)
+through the hand's centre: for a hand beside the torso that is the surface normal, and it moves continuously
+with the target, so a target sliding into the body slides along its surface, and one past the link's middle
+still leaves by the near side. (The distance's own gradient was tried first: where the hand overlaps a link it
+is a face normal of the polytopes, which jumps between faces as the target moves, 5-14 mm between frames on
+bow_old.) ``t`` is found by Newton steps.
 
 With ``fast_clearance`` the clearance depends on the hand's speed (:meth:`TrunkClearance.clearance_at`, the
 speed low-passed by :class:`HandSpeed`): the full one for a resting hand, which must keep the solver's dampers
@@ -59,9 +60,18 @@ LOOKOUT = 0.05
 #: be published outside the rest trunk, which its waist moves anyway.
 SLOW = 0.2
 FAST = 0.6
+#: Clearance [m] kept for a hand at FAST or faster by default (``RetargetConfig.trunk_clearance_fast``): a few
+#: millimetres clear the rest trunk without moving a swinging arm's targets much farther than it
+#: (session 12 measured 1 and 3 mm within a few per cent of each other; retarget README).
+FAST_CLEARANCE = 0.003
 #: Time constant [s] of the low-pass on the hand's speed (:class:`HandSpeed`): the clearance follows the arm's
 #: swing, not one frame's finite difference.
 SPEED_TAU = 0.1
+
+
+class NoTrunkError(ValueError):
+    """The robot profile gives no trunk for the hands to keep off (no ``[collision]`` table, no proxy for a wrist
+    link, or no trunk link paired with the wrists)."""
 
 
 class HandSpeed:
@@ -99,14 +109,15 @@ class TrunkClearance:
             pelvis), all rigid on the waist's last link, :attr:`carrier`. The trunk is still posed at the
             waist's rest: a caller with the waist elsewhere maps its targets into that pose
             (``services.solver.trunk_projection``).
-        sca: the robot's self-collision model, whose link proxies are shared (default: one is built, ~3 s);
-            it is not changed.
+        sca: the robot's self-collision model, whose link proxies are shared (default: one per robot model and
+            process, built on first use, ~1.5 s); it is not changed.
         fast_clearance: [m] the clearance for a hand moving at :data:`FAST` or faster (:meth:`clearance_at`;
             None: the full clearance at every speed).
 
     Raises:
-        ValueError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or (with
-            ``waist_carried``) the profile has no waist or no trunk link paired with the wrists is on it.
+        NoTrunkError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or no trunk link
+            is paired with the wrists (with ``waist_carried``: on the waist, or the profile has no waist).
+        ValueError: ``fast_clearance`` outside (0, clearance].
     """
 
     def __init__(
@@ -117,7 +128,9 @@ class TrunkClearance:
         sca: SelfCollisionAvoidance | None = None,
         fast_clearance: float | None = None,
     ):
-        sca = sca or SelfCollisionAvoidance(robot)
+        if sca is None and robot.profile.collision is None:
+            raise NoTrunkError(f"robot profile {robot.profile.name} has no [collision] table")
+        sca = sca or _collision_model(robot)
         m = sca.model
         d = mujoco.MjData(m)  # its own data at the rest pose: the shared model's state is left alone
         d.qpos[:] = sca.data.qpos
@@ -138,7 +151,7 @@ class TrunkClearance:
         trunk: set[str] = set()
         for link in wrist_frames.values():
             if link not in sca.links:
-                raise ValueError(f"wrist link {link!r} has no collision proxy ([collision] groups)")
+                raise NoTrunkError(f"wrist link {link!r} has no collision proxy ([collision] groups)")
             i = sca.links.index(link)
             for a, b in pairs:
                 other = sca.links[b] if a == i else sca.links[a] if b == i else None
@@ -148,14 +161,14 @@ class TrunkClearance:
         self.carrier: str | None = None
         if waist_carried:
             if not waist:
-                raise ValueError(f"robot profile {robot.profile.name} has no waist to carry a trunk")
+                raise NoTrunkError(f"robot profile {robot.profile.name} has no waist to carry a trunk")
             # the waist joints form one chain: the deepest one's body carries everything the waist moves
             bodies = [m.jnt_bodyid[m.joint(j).id] for j in robot.profile.waist]
             carrier = max(bodies, key=lambda b: _depth(m, b))
             self.carrier = m.body(carrier).name
             trunk = {link for link in trunk if _on(m, m.body(link).id, carrier)}
         if not trunk:
-            raise ValueError("no trunk link is paired with the wrists in [collision]")
+            raise NoTrunkError("no trunk link is paired with the wrists in [collision]")
         #: the trunk links (sorted)
         self.trunk = sorted(trunk)
         #: [m] the clearance kept between the hand and the trunk
@@ -178,16 +191,27 @@ class TrunkClearance:
         self.model = ms.compile()
         self.data = mujoco.MjData(self.model)
         self._trunk_geoms = [self.model.geom(f"polytope:{n}").id for n in self.trunk]
-        #: trunk geom -> (centre (3,) [m], unit axis (3,), lo, hi [m]): the segment of its proxy's longest principal
-        #: axis within its extent (base frame), where the exit rays start
+        #: trunk geom -> (centre (3,) [m], unit axis (3,), lo, hi [m]): the segment of the longest principal axis of
+        #: the trunk proxies on its link's rigid body, together, within their extent (base frame), where the exit
+        #: rays start. Per body, not per link: a small link on the body's surface (the G1's chest logo) has its
+        #: longest axis in its own plane, sideways across the chest, so kick_normal's right hand, in front of the
+        #: chest, was pushed 5-7 cm across it, and 5 cm back whenever the torso was the nearer link.
         self._axes = {}
+        rigid: dict[int, list[tuple[str, int]]] = {}
         for link, g in zip(self.trunk, self._trunk_geoms, strict=True):
-            bid = m.body(link).id
-            verts = d.xpos[bid] + sca.proxies[link].vertices() @ d.xmat[bid].reshape(3, 3).T
+            rigid.setdefault(_rigid_root(m, m.body(link).id), []).append((link, g))
+        for links in rigid.values():
+            verts = np.vstack(
+                [
+                    d.xpos[bid] + sca.proxies[link].vertices() @ d.xmat[bid].reshape(3, 3).T
+                    for link, bid in ((link, m.body(link).id) for link, _ in links)
+                ]
+            )
             centre = verts.mean(axis=0)
             axis = np.linalg.svd(verts - centre, full_matrices=False)[2][0]
             along = (verts - centre) @ axis
-            self._axes[g] = (centre, axis, float(along.min()), float(along.max()))
+            for _, g in links:
+                self._axes[g] = (centre, axis, float(along.min()), float(along.max()))
         #: side -> (hand geom id, mocap index)
         self._hand = {
             s: (self.model.geom(f"polytope:hand:{s}").id, int(self.model.body(f"hand:{s}").mocapid[0]))
@@ -260,12 +284,32 @@ class TrunkClearance:
         return out
 
 
+#: (profile file, joints) -> the self-collision model whose proxies the pushes read (never changed by them), so a
+#: process building several retargeters (the tests, ``mimic eval``) fits the proxies once
+_COLLISION_MODELS: dict[tuple[str, tuple[str, ...]], SelfCollisionAvoidance] = {}
+
+
+def _collision_model(robot: RobotModel) -> SelfCollisionAvoidance:
+    """The robot's self-collision model (cached per profile file and joint list)."""
+    key = (str(robot.profile.source), tuple(robot.joint_names))
+    if key not in _COLLISION_MODELS:
+        _COLLISION_MODELS[key] = SelfCollisionAvoidance(robot)
+    return _COLLISION_MODELS[key]
+
+
 def _depth(m: mujoco.MjModel, body: int) -> int:
     """Bodies between ``body`` and the world."""
     n = 0
     while body > 0:
         body, n = m.body_parentid[body], n + 1
     return n
+
+
+def _rigid_root(m: mujoco.MjModel, body: int) -> int:
+    """The body that ``body`` is rigidly part of: itself or its nearest ancestor with a joint (or on the world)."""
+    while m.body_jntnum[body] == 0 and m.body_parentid[body] > 0:
+        body = m.body_parentid[body]
+    return body
 
 
 def _on(m: mujoco.MjModel, body: int, carrier: int) -> bool:

@@ -9,22 +9,7 @@ import pytest
 from services.evaluation.reachability import IK_TOL, check_targets, trunk_for
 from shared.messages import Header, Target, TaskTargets
 from shared.rotations import matrix_to_quat
-
-
-def _front(trunk, R, depth):
-    """A left wrist target in front of the torso's axis whose hand (orientation R) lies ``depth`` [m] inside the
-    torso's front (negative: outside); waist at rest."""
-    g = trunk.model.geom("polytope:torso_link").id
-    centre, axis, _, _ = trunk._axes[g]
-    normal = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
-    normal /= np.linalg.norm(normal)
-    p = centre + 0.4 * normal
-    for _ in range(50):
-        d = trunk.nearest("left", p, R)[0]
-        if d < trunk.clearance:
-            break
-        p = p - 0.01 * normal
-    return p - normal * (d + depth)
+from tests.retarget.conftest import torso_front
 
 
 def _stream(robot, lefts, R):
@@ -43,7 +28,7 @@ def _stream(robot, lefts, R):
 def test_a_target_inside_the_torso_is_not_reachable_and_one_just_outside_is(robot14):
     trunk = trunk_for(robot14)
     R = robot14.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][1]
-    inside, outside = _front(trunk, R, 0.03), _front(trunk, R, -0.003)  # 3 cm in, 3 mm out
+    inside, outside = torso_front(trunk, R, 0.03)[0], torso_front(trunk, R, -0.003)[0]  # 3 cm in, 3 mm out
     rep = check_targets(robot14, _stream(robot14, [inside, outside], R))
     assert (rep.wrist_res["left"] <= IK_TOL).all()  # the IK alone reaches both
     assert rep.body_dist["left"][0] == pytest.approx(-0.03, abs=1e-3)
@@ -59,7 +44,7 @@ def test_a_target_inside_the_torso_is_not_reachable_and_one_just_outside_is(robo
 
 def test_the_body_check_can_be_left_out(robot14):
     R = robot14.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][1]
-    inside = _front(trunk_for(robot14), R, 0.03)
+    inside = torso_front(trunk_for(robot14), R, 0.03)[0]
     rep = check_targets(robot14, _stream(robot14, [inside], R), body=False)
     assert rep.reachable()["left"].tolist() == [True]
     assert rep.in_body()["frames_inside"] is None

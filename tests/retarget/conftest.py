@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -77,3 +78,25 @@ def targets_without_and_with(bvh_clips, name: str, workspace, robot14, option: s
         on: clip_targets(clip, Retargeter(RetargetConfig(**{option: on}), workspace=workspace, robot=robot14))
         for on in (False, True)
     }
+
+
+def torso_front(trunk, R: np.ndarray, depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """A left wrist target (3,) [m] straight in front of the torso's axis at belly height, whose hand lies
+    ``depth`` [m] inside the torso's front (negative: outside), and the torso's outward normal there (3,)."""
+    g = trunk.model.geom("polytope:torso_link").id
+    _, axis, _, _ = trunk._axes[g]
+    mujoco.mj_kinematics(trunk.model, trunk.data)
+    centre = trunk.data.geom_xpos[g]  # the torso link's own middle (the axis runs on up through the chest and head)
+    normal = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
+    normal /= np.linalg.norm(normal)
+    far = centre + 0.4 * normal  # hand clear of everything
+    d_far = trunk.nearest("left", far, R)[0]
+    assert d_far > trunk.clearance  # (the lookout caps it; walk in until it is measured)
+    p = far.copy()
+    for _ in range(50):
+        d, _, _ = trunk.nearest("left", p, R)
+        if d < trunk.clearance:
+            break
+        p = p - 0.01 * normal
+    # the torso's front is flat there: the distance falls 1:1 along the normal
+    return p - normal * (d + depth), normal

@@ -11,7 +11,7 @@ from services.retarget.calibration import anthropometric
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from shared.messages import TaskTargets
 from shared.rotations import matrix_to_quat, quat_to_matrix
-from shared.targets import TARGET_NAMES
+from shared.targets import TARGET_NAMES, WRISTS, side_of
 
 #: These tests check seed 000's eqs. (1)-(4) as written: per-axis elbows, eq. 4 against the rest pose.
 #: The product defaults (swivel elbows, forearm-relative orientation) are covered in test_elbow.py.
@@ -145,16 +145,27 @@ def test_velocities_follow_the_mapped_motion(make):
     np.testing.assert_allclose(out.targets["right_wrist"].w, [0.0, 0.0, 1.0], atol=1e-9)
 
 
-def test_bounded_mode_keeps_wild_motion_in_the_box(make, workspace):
-    r = make()
+@pytest.mark.parametrize("push", [False, True], ids=["no push", "trunk push"])
+def test_bounded_mode_keeps_wild_motion_in_the_box(make, workspace, push):
+    """Every target in the box; with the trunk push (default) a wrist target leaves it only where the push moved
+    it, and then it is at the push's clearance off the trunk (between the fast and the full one)."""
+    r = make(trunk_clearance=push)
     rng = np.random.default_rng(2)
     r.step(make_frame(0, 0.0))
+    pushed_out = 0
     for i in range(1, 200):
         offs = {b: rng.uniform(-1.5, 1.5, 3) for b in TARGET_NAMES}
         out = r.step(make_frame(i, i / 30, offsets=offs))
         for t in TARGET_NAMES:
-            assert workspace.contains(t, out.targets[t].p)
+            p = out.targets[t].p
+            if workspace.contains(t, p):
+                continue
+            assert push and t in WRISTS, t
+            d = r.trunk.nearest(side_of(t), p, quat_to_matrix(out.targets[t].q))[0]
+            assert r.trunk.fast_clearance - 5e-4 < d < r.trunk.clearance + 5e-4, (t, d)
+            pushed_out += 1
     assert r.counts["clamped_left_wrist"] > 0
+    assert (pushed_out > 0) == push  # (the push ran, and moved some targets out of the box)
 
 
 def test_incremental_mode_starts_at_robot_rest_and_adds_deltas(make, robot14, workspace):

@@ -64,6 +64,7 @@ def test_arms_only_robot_runs_the_retarget_path_unchanged(arms_only, tmp_path, m
     r = Retargeter(
         RetargetConfig(robot=str(arms_only.source), samples=2000, reach_samples=20_000), workspace=ws, robot=rm
     )
+    assert r.trunk is None  # its rubber hands have no collision proxy: no trunk push (a warning), the rest runs
     solver = SolverCore(rm, SolverConfig())
     dt, out, cmd, t = solver.config.dt, None, None, 0.0
     for k in range(60):

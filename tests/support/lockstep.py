@@ -28,11 +28,11 @@ def step_through(core: SolverCore, frames: Sequence[TaskTargets]) -> int:
     return ticks
 
 
-def clip_targets_until(name: str, robot, until: float) -> list[TaskTargets]:
-    """The eval's retargeted targets of ``bvh/<name>`` for ``robot``, the first ``until`` [s] of the clip; skips the
-    test when the clip is not in the data folder."""
+def clip_targets_until(name: str, robot, until: float, retarget: dict | None = None) -> list[TaskTargets]:
+    """The eval's retargeted targets of ``bvh/<name>`` for ``robot``, the first ``until`` [s] of the clip (``retarget``:
+    RetargetConfig fields other than the service's); skips the test when the clip is not in the data folder."""
     path = mocap_dir() / "bvh" / name
     if not path.exists():
         pytest.skip(f"clip {path} not in the data folder")
-    _clip, targets = load_and_retarget(path, robot)
+    _clip, targets = load_and_retarget(path, robot, retarget=retarget)
     return [t for t in targets if t.hdr.stamp <= until]
