@@ -16,10 +16,12 @@ from services.evaluation.metrics import (
     REACHABLE_TOL,
     compare,
     operator_errors,
+    operator_waist_turn,
     reachable_mask,
     summarise,
     target_adjustment,
     trace_metrics,
+    waist_vs_operator,
 )
 from services.evaluation.mink_peer import PEERS, MinkMissingError, require_mink
 from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
@@ -27,6 +29,7 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
+from services.retarget.torso import WaistMap, operator_waist
 from services.solver.cli import SWITCHES, add_switches, switch_values
 from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
@@ -173,6 +176,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
 
+def _waist_map(robot) -> WaistMap | None:
+    """The operator-to-waist map of ``waist_vs_operator_deg``; None (logged) when the model has no waist the split
+    fits (``--no-waist``, another profile)."""
+    try:
+        return WaistMap(robot)
+    except ValueError as exc:
+        log.info("no waist_vs_operator_deg: %s", exc)
+        return None
+
+
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
     algos, solver, wqp_weights, retarget = _settings(args)
@@ -189,6 +202,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         runs += [(f"wrist-only:{a}", a, True, solver) for a in algos]
         if policy:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
+    waist = _waist_map(robot)
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
@@ -204,6 +218,12 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             bar.update(len(runs))
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
+        # the operator's torso as waist angles per frame (seq = frame index), None without a measured chest
+        op_waist = (
+            operator_waist((clip.frame(i, seq=i) for i in range(clip.n_frames)), waist) if waist is not None else None
+        )
+        if op_waist is not None:  # how far the operator's own torso turned: the scale of waist_vs_operator_deg
+            entry["operator_waist_deg"] = operator_waist_turn(op_waist, waist.rest)
         plain = None
         if any(retarget.get(k) for k in MOVING_OPTIONS):
             # what the operator's motion gave before the targets were moved towards what the arm can do
@@ -232,6 +252,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                     entry["algos"][label] = trace_metrics(tr, robot, mask, report, sim=sim)
                     if plain is not None:
                         entry["algos"][label] |= operator_errors(tr, plain)
+                    if op_waist is not None:
+                        entry["algos"][label] |= waist_vs_operator(tr, robot, op_waist)
                     traces[(clip.name, label)] = tr
             except Exception as exc:  # one failed run must not lose the others' results
                 log.error(

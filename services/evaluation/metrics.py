@@ -219,6 +219,30 @@ def acceleration_violations(trace: Trace, robot: RobotModel, rel_tol: float = 1e
     return int(np.sum(dqd > step * (1.0 + rel_tol) + 1e-9))
 
 
+def waist_vs_operator(trace: Trace, robot: RobotModel, operator: np.ndarray) -> dict:
+    """``waist_vs_operator_deg``: per tick, the largest difference [deg] between the robot's waist joints and the
+    operator's chest turned into waist angles (``services.retarget.torso``) in the frame the tick tracked
+    (``trace.seq``); ticks before the first frame or of frames without a measured chest are left out.
+
+    Args:
+        operator: (N, w) [rad] the operator's waist angles per clip frame (seq = frame index), NaN rows without a
+            measured chest (:func:`services.retarget.torso.operator_waist`).
+    """
+    idx = [robot.joint_names.index(j) for j in robot.profile.waist]
+    seq = np.asarray(trace.seq, dtype=int)
+    ok = (seq >= 0) & (seq < len(operator))
+    op = operator[seq[ok]]
+    d = np.degrees(np.abs(np.asarray(trace.q)[ok][:, idx] - op)).max(axis=1)
+    return {"waist_vs_operator_deg": _stats(d[np.isfinite(d)])}
+
+
+def operator_waist_turn(operator: np.ndarray, rest: np.ndarray) -> dict:
+    """``operator_waist_deg``: per frame with a measured chest, the largest departure [deg] of the operator's waist
+    angles (N, w) [rad] from the waist's rest (w,) [rad]: how far the operator's own torso turned, the scale of
+    ``waist_vs_operator_deg``."""
+    return _stats(np.degrees(np.abs(operator - rest)).max(axis=1))
+
+
 def reachable_mask(reference: Trace) -> np.ndarray:
     """Ticks where the strict hierarchy met the wrist level."""
     return np.nan_to_num(reference.res1, nan=np.inf) < REACHABLE_TOL
