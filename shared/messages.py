@@ -515,6 +515,11 @@ class TaskTargets(Message):
             that the robot's upper-arm link takes when it copies the operator's upper arm (seed 004
             eq. 6's ``R_m``). Present only for sides whose shoulder, elbow and wrist the source gave
             (wire key ``ua``; absent from older publishers, which stay valid).
+        waist: optional, (n,) [rad] the robot's waist joint angles (profile ``waist`` order; G1: yaw, roll, pitch)
+            that turn its torso as the operator's chest turned relative to their pelvis since the calibration
+            (``services.retarget.torso``), clipped into the joints' ranges. Empty (wire key ``wa`` absent) when the
+            source gave no measured chest orientation (wrist-only sources, marker-only C3D) and from older
+            publishers. With ``SolverConfig.waist_follow_cost`` the strict solvers pull the waist towards it.
     """
 
     TYPE: ClassVar[str] = "TaskTargets"
@@ -522,6 +527,7 @@ class TaskTargets(Message):
     targets: dict[str, Target]
     mode: str = "absolute"
     upper_arms: dict[str, np.ndarray] = field(default_factory=dict)
+    waist: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def body(self) -> dict:
         d = {
@@ -534,6 +540,8 @@ class TaskTargets(Message):
         }
         if self.upper_arms:
             d["ua"] = {s: _fl(q) for s, q in self.upper_arms.items()}
+        if len(self.waist):
+            d["wa"] = _fl(self.waist)
         return d
 
     @classmethod
@@ -555,11 +563,13 @@ class TaskTargets(Message):
                 items[5],
             )
         upper_arms = {s: _quat(q, f"ua.{s}") for s, q in _table(d.get("ua", {}), "ua", SIDES).items()}
+        waist = _vec(d["wa"], "wa") if "wa" in d else np.zeros(0)
         return cls(
             Header.from_wire(_req(d, "hdr", "TaskTargets")),
             targets,
             _str(d.get("mode", "absolute"), "mode"),
             upper_arms,
+            waist,
         )
 
 

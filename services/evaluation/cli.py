@@ -165,6 +165,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "saturation_weight; default: SolverConfig's, 0 = off)",
     )
     p.add_argument(
+        "--waist-follow-cost",
+        type=float,
+        default=None,
+        help="strict HQPs: pull the waist towards the operator's torso on level 2 at this weight [1/rad] "
+        "(SolverConfig.waist_follow_cost; default: SolverConfig's, 0 = off); compare waist_vs_operator_deg",
+    )
+    p.add_argument(
         "--saturation-trigger",
         choices=SATURATION_TRIGGERS,
         default=None,
@@ -345,6 +352,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     saturation = getattr(args, "saturation_weight", None)
     if saturation is not None:
         solver["saturation_weight"] = saturation
+    follow = getattr(args, "waist_follow_cost", None)
+    if follow is not None:
+        solver["waist_follow_cost"] = follow
     trigger = getattr(args, "saturation_trigger", None)
     if trigger is not None:
         solver["saturation_trigger"] = trigger

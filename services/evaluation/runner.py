@@ -321,12 +321,12 @@ class _Recorder:
 
 
 def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:
-    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms."""
+    """What a wrist-only source gives the solver: the same wrist targets, elbows invalid, no upper arms, no waist."""
     out = []
     for tt in targets:
         tg = {n: (replace(t, valid=False, v=np.zeros(3), w=np.zeros(3)) if n in ELBOWS else t)
               for n, t in tt.targets.items()}  # fmt: skip
-        out.append(replace(tt, targets=tg, upper_arms={}))
+        out.append(replace(tt, targets=tg, upper_arms={}, waist=np.zeros(0)))
     return out
 
 

@@ -21,6 +21,9 @@ Per frame and per target (both wrists and elbows):
 7. a target whose bone is missing or invalid is published ``valid=False`` holding its
    last valid pose (the robot rest pose before any) with zero velocity.
 
+Each frame with a measured chest orientation also publishes ``TaskTargets.waist``: the robot's waist angles for
+the operator's chest rotation relative to the pelvis since the calibration frame (:mod:`.torso`).
+
 Frame order is judged by :class:`shared.sequence.SequenceGuard` (the same rule as the
 ingest sanitizer's): frames whose ``seq`` or ``stamp`` does not increase are rejected
 (``step`` returns None and ``last_reject`` says why); a seq far back, or ``resync_after``
@@ -53,6 +56,7 @@ from services.retarget.orientation import (
     calibration_orientations,
 )
 from services.retarget.reach import REACH_SAMPLES, ReachMap, operator_reach
+from services.retarget.torso import WaistMap, chest_rotation
 from services.retarget.trunk import FAST_CLEARANCE, HandSpeed, NoTrunkError, TrunkClearance
 from services.retarget.upper_arm import UpperArmSolver
 from services.retarget.velocity import LowPassVelocity
@@ -216,6 +220,17 @@ class RetargetConfig:
         return d
 
 
+def _waist_map(prof: RobotProfile) -> WaistMap | None:
+    """The profile's operator-to-waist map, None (logged) when its waist is not three orthogonal joints."""
+    if not prof.waist:
+        return None
+    try:
+        return WaistMap(profile=prof)
+    except ValueError as exc:
+        log.warning("no operator waist published: %s", exc)
+        return None
+
+
 class Retargeter(FrameIntake):
     """HumanFrames in the operator pelvis frame -> wrist/elbow TaskTargets in the robot base frame.
 
@@ -292,6 +307,10 @@ class Retargeter(FrameIntake):
                 log.warning("trunk clearance off: %s", exc)
         #: side -> the low-passed speed of its mapped wrist target, which sets the push's clearance
         self._hand_speed = {s: HandSpeed() for s in SIDES}
+        #: the operator's chest rotation -> the robot's waist angles (None: the profile has no waist the split fits)
+        self.waist_map: WaistMap | None = _waist_map(prof)
+        #: the operator's chest orientation (3, 3) at the calibration (pelvis frame), None until a frame gives one
+        self._chest_rest: np.ndarray | None = None
         #: side -> rows of its wrist and elbow in the per-frame target arrays (``TARGET_NAMES`` order)
         self._arm_rows = {s: (TARGET_NAMES.index(wrist_of(s)), TARGET_NAMES.index(elbow_of(s))) for s in SIDES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
@@ -346,6 +365,7 @@ class Retargeter(FrameIntake):
         """Install an operator calibration: rebuilds the per-target maps and restarts the stream state."""
         self.calibration = calibration
         self._recalibrate = False
+        self._chest_rest = None  # the chest's rest: the first frame of this calibration that measures it
         ws = self.workspace
         self._pos_map: dict[str, AbsoluteMap | IncrementalMap] = {}
         self._rot_map: dict[str, OrientationMap] = {}
@@ -491,7 +511,30 @@ class Retargeter(FrameIntake):
             placed = self._place_elbow(side, frame, wrist.p) if wrist.valid else None
             if placed is not None:
                 upper_arms[side] = matrix_to_quat(ua_map(placed[0], wrist.p))
-        return TaskTargets(Header(hdr.seq, hdr.stamp, hdr.t0), targets, mode=self.config.mode, upper_arms=upper_arms)
+        return TaskTargets(
+            Header(hdr.seq, hdr.stamp, hdr.t0),
+            targets,
+            mode=self.config.mode,
+            upper_arms=upper_arms,
+            waist=self._waist(frame),
+        )
+
+    def _waist(self, frame: HumanFrame) -> np.ndarray:
+        """(3,) [rad] the robot's waist angles for the operator's chest rotation since the calibration
+        (:class:`.torso.WaistMap`, clipped into the ranges), empty without a measured chest orientation. The
+        calibration frame (or, with a calibration from a file, the first frame after it that measures the chest)
+        is the chest's rest."""
+        R = chest_rotation(frame) if self.waist_map is not None else None
+        if R is None:
+            return np.zeros(0)
+        if self._chest_rest is None:
+            self._chest_rest = R
+        raw = self.waist_map.angles(R, self._chest_rest)
+        q = np.clip(raw, self.waist_map.lower, self.waist_map.upper)
+        for j, clipped in zip(self.waist_map.joints, q != raw, strict=True):
+            if clipped:
+                self.counts[f"waist_clipped_{j}"] += 1
+        return q
 
     def _posture_maps(self, frame: HumanFrame) -> None:
         """Eq. (4) offsets against the robot's calibration posture (``orientation_reference="posture"``).

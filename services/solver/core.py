@@ -154,6 +154,15 @@ class SolverConfig:
             forced shut 0.3 s of every 1.5 s at four phases: wrist mean 1.517 cm switching in one tick
             (old wiring), 1.492 at 0.2 s, 1.457 at 0.3 s; 1.455 with the gate never closing.
         mimicry_eta: η [1/s] of ``clik-mimicry`` (seed 004 eq. 3).
+        waist_follow_cost: weight [1/rad] of a pull of the waist joints, on level 2 beside the elbows (strict
+            hierarchies only), towards the operator's torso turned into waist angles (``TaskTargets.waist``, the
+            retargeter's :mod:`services.retarget.torso`; the rest pose for a source without a measured chest, and
+            the last angles held through frames without one), at ``posture_gain``; 0 = off (default). Level 2 has
+            more rows than the joints level 1 leaves it (elbows and wrist orientations: 12 against 11), so nothing
+            below it keeps the waist anywhere, and it turns wherever the least-squares optimum of those rows takes
+            it: 21 deg from the operator's torso on average over the 23 BVH clips (``mimic eval``
+            ``waist_vs_operator_deg``), 29 deg on wave-right-hand_elderly whose operator turns 2. Measured in the
+            solver README (session 13): a torso that follows, for some elbow error.
         wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
             2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
             posture. 3: wrist positions > elbows > wrist orientations (+ posture). 1: the paper's
@@ -288,6 +297,7 @@ class SolverConfig:
     wrist_only_posture_gain: float = 2.0
     posture_blend_time: float = 0.3
     mimicry_eta: float = 10.0
+    waist_follow_cost: float = 0.0
 
     def __post_init__(self) -> None:
         from services.solver.qp import QP_BACKENDS
@@ -325,6 +335,8 @@ class SolverConfig:
             raise ValueError(
                 f"saturation_trigger must be one of {SATURATION_TRIGGERS}, got {self.saturation_trigger!r}"
             )
+        if not self.waist_follow_cost >= 0.0:
+            raise ValueError(f"waist_follow_cost must be >= 0 [1/rad], got {self.waist_follow_cost}")
         if not 0.0 <= self.posture_blend_time <= 10.0:
             raise ValueError(f"posture_blend_time must be in [0, 10] s, got {self.posture_blend_time}")
         if self.smoothing_ticks <= MAX_STEP_TICKS:
@@ -468,6 +480,15 @@ class SolverCore:
         )
         if self.centring_task is not None:
             self.levels = [self.levels[0], [*self.levels[1], self.centring_task], *self.levels[2:]]
+        #: (n,) [rad] joint indices of the waist, profile order (empty without one in the model)
+        self._waist_idx = np.array([robot.joint_names.index(j) for j in robot.profile.waist if j in robot.joint_names])
+        #: the pull of the waist towards the operator's torso beside the elbows (``waist_follow_cost``), else None
+        self.waist_task: PostureTask | None = None
+        if cfg.waist_follow_cost > 0 and len(self._waist_idx) and cfg.algo in STRICT_ALGORITHMS:
+            cost = np.zeros(self.n)
+            cost[self._waist_idx] = cfg.waist_follow_cost
+            self.waist_task = PostureTask(robot.q_rest, cost, cfg.posture_gain)
+            self.levels = [self.levels[0], [*self.levels[1], self.waist_task], *self.levels[2:]]
         self._setup_posture(robot, cfg, gain)
         self._position_tasks = list(self.wrist_tasks)
 
@@ -728,6 +749,8 @@ class SolverCore:
             for s in SIDES:
                 q_m = targets.upper_arms.get(s)
                 self.upper_arm[s] = None if q_m is None else quat_to_matrix(q_m)
+            if self.waist_task is not None and len(targets.waist) == len(self._waist_idx):
+                self.waist_task.q_target[self._waist_idx] = targets.waist  # held through frames without one
         self.counts["ticks"] += 1
         if not self.tracker.started:
             # Hold the pose we started from until the first targets arrive.

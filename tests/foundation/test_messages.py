@@ -218,3 +218,19 @@ def test_human_frame_says_whether_its_orientations_are_measured():
     with pytest.raises(MessageError) as err:
         HumanFrame.from_body(body)
     assert err.value.reason == "type" and "ori" in str(err.value)
+
+
+def test_task_targets_carry_an_optional_waist_validated():
+    tt = make_targets()
+    tt.waist = np.array([0.1, -0.2, 0.3])
+    back = TaskTargets.decode(tt.encode())
+    np.testing.assert_allclose(back.waist, [0.1, -0.2, 0.3])
+    plain = make_targets()
+    assert "wa" not in msgpack.unpackb(plain.encode())  # absent when empty
+    assert len(TaskTargets.decode(plain.encode()).waist) == 0  # older publishers: absent
+    for bad, reason in (([0.1, float("nan"), 0.0], "nan"), ([0.1, "x"], "type"), (0.3, "type")):
+        d = msgpack.unpackb(make_targets().encode())
+        d["wa"] = bad
+        with pytest.raises(MessageError) as exc:
+            TaskTargets.decode(msgpack.packb(d))
+        assert exc.value.reason == reason, (bad, exc.value)

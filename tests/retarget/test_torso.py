@@ -9,6 +9,7 @@ import pytest
 from conftest import make_frame
 
 from services.evaluation.metrics import waist_vs_operator
+from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.retarget.torso import WaistMap, chest_rotation, operator_waist
 from shared.messages import Bone
 from shared.rotations import matrix_to_quat
@@ -121,3 +122,27 @@ def test_waist_vs_operator_is_the_largest_joint_gap_of_the_tracked_frame(robot17
     before, after = np.sum((tr.seq >= 1) & (tr.seq < half)), np.sum(tr.seq >= half)
     assert m["max"] == pytest.approx(np.degrees(0.2))
     assert m["mean"] == pytest.approx(np.degrees(0.2 * before + 0.1 * after) / (before + after))
+
+
+def test_the_retargeter_publishes_the_operator_waist_against_the_calibration_frame(robot14, workspace, chest_rest):
+    """The calibration (first) frame's chest is the rest; a later chest yawed 0.3 rad publishes waist (0.3, 0, 0);
+    a frame without a chest publishes none; a pitch past the range is clipped and counted; the waist leaves the
+    hand targets alone."""
+    rt = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    first = rt.step(_with_chest(make_frame(0, 0.0), chest_rest))
+    np.testing.assert_allclose(first.waist, 0.0, atol=1e-12)
+    turned = rt.step(_with_chest(make_frame(1, 0.01), rot(Z, 0.3) @ chest_rest))
+    np.testing.assert_allclose(turned.waist, [0.3, 0.0, 0.0], atol=1e-12)
+    assert len(rt.step(make_frame(2, 0.02)).waist) == 0
+    past = rt.step(_with_chest(make_frame(3, 0.03), rot(Y, 0.7) @ chest_rest))
+    np.testing.assert_allclose(past.waist, [0.0, 0.0, 0.5], atol=1e-12)
+    assert rt.counts["waist_clipped_waist_pitch_joint"] == 1
+    assert (turned.targets["left_wrist"].p == rt.step(make_frame(4, 0.04)).targets["left_wrist"].p).all()
+
+
+def test_a_new_calibration_takes_a_new_chest_rest(robot14, workspace, chest_rest):
+    rt = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    rt.step(_with_chest(make_frame(0, 0.0), chest_rest))
+    rt.request_recalibration()
+    turned = rot(Z, 0.3) @ chest_rest
+    np.testing.assert_allclose(rt.step(_with_chest(make_frame(1, 0.01), turned)).waist, 0.0, atol=1e-12)
