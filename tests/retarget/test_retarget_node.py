@@ -20,7 +20,7 @@ from services.retarget import node as node_module
 from services.retarget.calibration import anthropometric
 from services.retarget.node import RetargetNode
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from shared.bus import ServiceRunner, bus_args, query, zenoh_config
+from shared.bus import ServiceRunner, bus_args, query, sample_number, zenoh_config
 from shared.keys import Keys
 from shared.messages import TaskTargets
 from shared.robot.profile import DEFAULT_PROFILE
@@ -55,18 +55,33 @@ def test_node_retargets_every_frame_and_serves_calibration(router, robot14, work
         node = RetargetNode(r, svc, save_calibration=[tmp_path / "cal.json"])
         client = _client(router)
         got: queue.Queue = queue.Queue()
-        client.declare_subscriber(keys.targets, lambda s: got.put(TaskTargets.decode(s.payload.to_bytes())))
+        numbers: dict[int, int] = {}  # seq -> the node publisher's sample number (shared.bus.NumberedPublisher)
+
+        def on_targets(sample: zenoh.Sample) -> None:
+            tt = TaskTargets.decode(sample.payload.to_bytes())
+            numbers[tt.hdr.seq] = sample_number(sample)[1]
+            got.put(tt)
+
+        client.declare_subscriber(keys.targets, on_targets)
         pub = client.declare_publisher(keys.mocap_frame)
         time.sleep(0.5)  # let the subscriptions propagate through the router
         assert msgpack.unpackb(query(client, keys.calibration)) == {"calibrated": False}
 
         for i in range(1, 21):
             pub.put(make_frame(i, i / 30, offsets={"left_wrist": np.array([0.0, 0.0, 0.01 * i])}, t0=1000 + i).encode())
+            time.sleep(0.005)  # 200 Hz, above any mocap rate (sent at once, the targets went out in one burst)
         pub.put(make_frame(20, 0.9, t0=1020).encode())  # duplicated seq (a duplicate keeps its t0)
         pub.put(b"\x93garbage")  # not a HumanFrame
         outs = _collect(got, 20, timeout=5.0)
-        assert [o.hdr.seq for o in outs] == list(range(1, 21))
-        assert [o.hdr.t0 for o in outs] == [1000 + i for i in range(1, 21)]
+        # Every frame is retargeted and published in order (the node's count below says all 20 went out). On the way
+        # to this subscriber Zenoh's DROP congestion control may lose some on a loaded machine (shared/bus.py: by
+        # design, counted as gaps by the receiver): 1-6 of the 20 in 1 run of 8-16 with two busy loops beside the
+        # test, and once in a full suite run. Each sample's number is its frame's seq, so a missing frame is
+        # exactly such a counted gap, never one the node skipped.
+        seqs = [o.hdr.seq for o in outs]
+        assert len(outs) >= 10 and seqs == sorted(set(seqs)) and set(seqs) <= set(range(1, 21))
+        assert all(numbers[q] == q for q in seqs), numbers
+        assert [o.hdr.t0 for o in outs] == [1000 + q for q in seqs]
         assert outs[-1].targets["left_wrist"].p[2] > outs[0].targets["left_wrist"].p[2]
         time.sleep(0.2)
         node.update_status()
