@@ -15,8 +15,10 @@ from tqdm import tqdm
 from services.evaluation.metrics import (
     REACHABLE_TOL,
     compare,
+    has_waist,
     operator_errors,
     operator_waist_turn,
+    published_waist,
     reachable_mask,
     summarise,
     target_adjustment,
@@ -29,7 +31,6 @@ from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_ret
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
-from services.retarget.torso import WaistMap, operator_waist
 from services.solver.cli import SWITCHES, add_switches, switch_values
 from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
@@ -183,16 +184,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
 
-def _waist_map(robot) -> WaistMap | None:
-    """The operator-to-waist map of ``waist_vs_operator_deg``; None (logged) when the model has no waist the split
-    fits (``--no-waist``, another profile)."""
-    try:
-        return WaistMap(robot)
-    except ValueError as exc:
-        log.info("no waist_vs_operator_deg: %s", exc)
-        return None
-
-
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
     algos, solver, wqp_weights, retarget = _settings(args)
@@ -209,7 +200,6 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         runs += [(f"wrist-only:{a}", a, True, solver) for a in algos]
         if policy:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
-    waist = _waist_map(robot)
     clips_out, traces = [], {}
     bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
@@ -225,12 +215,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
             bar.update(len(runs))
             continue
         entry = {"clip": clip.name, "frames": len(targets), "algos": {}}
-        # the operator's torso as waist angles per frame (seq = frame index), None without a measured chest
-        op_waist = (
-            operator_waist((clip.frame(i, seq=i) for i in range(clip.n_frames)), waist) if waist is not None else None
-        )
+        # the operator's torso as waist angles, as published (seq = frame index); None without a measured chest
+        op_waist = published_waist(targets) if has_waist(robot) else None
         if op_waist is not None:  # how far the operator's own torso turned: the scale of waist_vs_operator_deg
-            entry["operator_waist_deg"] = operator_waist_turn(op_waist, waist.rest)
+            entry["operator_waist_deg"] = operator_waist_turn(op_waist, robot)
         plain = None
         if any(retarget.get(k) for k in MOVING_OPTIONS):
             # what the operator's motion gave before the targets were moved towards what the arm can do

@@ -7,6 +7,7 @@ import pinocchio as pin
 
 from services.evaluation.reachability import ReachabilityReport
 from services.evaluation.runner import Trace
+from shared.messages import TaskTargets
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import quat_to_matrix
 from shared.targets import ELBOWS, WRISTS
@@ -219,28 +220,47 @@ def acceleration_violations(trace: Trace, robot: RobotModel, rel_tol: float = 1e
     return int(np.sum(dqd > step * (1.0 + rel_tol) + 1e-9))
 
 
+def published_waist(targets: list[TaskTargets]) -> np.ndarray | None:
+    """(N, w) [rad] the operator's torso as waist angles that each published frame carried (``TaskTargets.waist``,
+    the retargeter's :mod:`services.retarget.torso`: what ``SolverConfig.waist_follow_cost`` follows), row = frame
+    seq, NaN rows for seqs without one; None when no frame carried one (no measured chest: C3D, wrist-only)."""
+    rows = {tt.hdr.seq: tt.waist for tt in targets if len(tt.waist)}
+    if not rows:
+        return None
+    out = np.full((max(tt.hdr.seq for tt in targets) + 1, len(next(iter(rows.values())))), np.nan)
+    for seq, w in rows.items():
+        out[seq] = w
+    return out
+
+
+def has_waist(robot: RobotModel) -> bool:
+    """The model controls every waist joint of its profile (not with ``mimic eval --no-waist``)."""
+    return bool(robot.profile.waist) and all(j in robot.joint_names for j in robot.profile.waist)
+
+
+def _waist_cols(robot: RobotModel) -> list[int]:
+    return [robot.joint_names.index(j) for j in robot.profile.waist]
+
+
 def waist_vs_operator(trace: Trace, robot: RobotModel, operator: np.ndarray) -> dict:
     """``waist_vs_operator_deg``: per tick, the largest difference [deg] between the robot's waist joints and the
-    operator's chest turned into waist angles (``services.retarget.torso``) in the frame the tick tracked
-    (``trace.seq``); ticks before the first frame or of frames without a measured chest are left out.
+    operator's torso as waist angles in the frame the tick tracked (``trace.seq``); ticks before the first frame or
+    of frames without them are left out.
 
     Args:
-        operator: (N, w) [rad] the operator's waist angles per clip frame (seq = frame index), NaN rows without a
-            measured chest (:func:`services.retarget.torso.operator_waist`).
+        operator: (N, w) [rad] the operator's waist angles per frame seq, NaN rows without (:func:`published_waist`).
     """
-    idx = [robot.joint_names.index(j) for j in robot.profile.waist]
     seq = np.asarray(trace.seq, dtype=int)
     ok = (seq >= 0) & (seq < len(operator))
-    op = operator[seq[ok]]
-    d = np.degrees(np.abs(np.asarray(trace.q)[ok][:, idx] - op)).max(axis=1)
-    return {"waist_vs_operator_deg": _stats(d[np.isfinite(d)])}
+    d = np.degrees(np.abs(np.asarray(trace.q)[ok][:, _waist_cols(robot)] - operator[seq[ok]])).max(axis=1)
+    return {"waist_vs_operator_deg": _stats(d)}
 
 
-def operator_waist_turn(operator: np.ndarray, rest: np.ndarray) -> dict:
-    """``operator_waist_deg``: per frame with a measured chest, the largest departure [deg] of the operator's waist
-    angles (N, w) [rad] from the waist's rest (w,) [rad]: how far the operator's own torso turned, the scale of
+def operator_waist_turn(operator: np.ndarray, robot: RobotModel) -> dict:
+    """``operator_waist_deg``: per frame with them, the largest departure [deg] of the operator's waist angles
+    (N, w) [rad] from the robot's waist rest: how far the operator's own torso turned, the scale of
     ``waist_vs_operator_deg``."""
-    return _stats(np.degrees(np.abs(operator - rest)).max(axis=1))
+    return _stats(np.degrees(np.abs(operator - robot.q_rest[_waist_cols(robot)])).max(axis=1))
 
 
 def reachable_mask(reference: Trace) -> np.ndarray:

@@ -29,7 +29,6 @@ the middle angle in [-90, 90] deg. The waist angles are ``q_rest + theta`` clipp
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 
 import numpy as np
 import pinocchio as pin
@@ -138,16 +137,3 @@ def _waist_model(profile: RobotProfile | str | None) -> RobotModel:
     if key not in _MODELS:
         _MODELS[key] = build_robot_model(prof, with_waist=True)
     return _MODELS[key]
-
-
-def operator_waist(frames: Iterable[HumanFrame], waist: WaistMap) -> np.ndarray | None:
-    """(N, 3) [rad] the waist angles of the operator's chest in each frame (:class:`WaistMap`, clipped), against the
-    first frame that measures it (the calibration frame of a clip); NaN rows for frames without a measured chest;
-    None when no frame has one (a marker-only C3D clip, a wrist-only source)."""
-    rows, rest = [], None
-    for frame in frames:
-        R = chest_rotation(frame)
-        if R is not None and rest is None:
-            rest = R
-        rows.append(np.full(3, np.nan) if R is None else waist(R, rest))
-    return np.array(rows) if rest is not None else None

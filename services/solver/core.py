@@ -480,7 +480,7 @@ class SolverCore:
         )
         if self.centring_task is not None:
             self.levels = [self.levels[0], [*self.levels[1], self.centring_task], *self.levels[2:]]
-        #: (n,) [rad] joint indices of the waist, profile order (empty without one in the model)
+        #: (w,) positions in q of the waist joints, profile order (empty without a waist in the model)
         self._waist_idx = np.array([robot.joint_names.index(j) for j in robot.profile.waist if j in robot.joint_names])
         #: the pull of the waist towards the operator's torso beside the elbows (``waist_follow_cost``), else None
         self.waist_task: PostureTask | None = None

@@ -1,5 +1,5 @@
-"""The operator's chest rotation as the robot's waist angles (``services/retarget/torso.py``), and the eval's
-``waist_vs_operator_deg`` built on it."""
+"""The operator's chest rotation as the robot's waist angles (``services/retarget/torso.py``), published by the
+retargeter (``TaskTargets.waist``), and the eval's ``waist_vs_operator_deg`` built on it."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pinocchio as pin
 import pytest
 from conftest import make_frame
 
-from services.evaluation.metrics import waist_vs_operator
+from services.evaluation.metrics import published_waist, waist_vs_operator
 from services.retarget.retargeter import RetargetConfig, Retargeter
-from services.retarget.torso import WaistMap, chest_rotation, operator_waist
+from services.retarget.torso import WaistMap, chest_rotation
 from shared.messages import Bone
 from shared.rotations import matrix_to_quat
 from tests.evaluation.test_metrics import synthetic_trace
@@ -92,19 +92,22 @@ def test_chest_rotation_needs_a_measured_valid_chest(chest_rest):
     np.testing.assert_allclose(chest_rotation(_with_chest(make_frame(0, 0.0), chest_rest)), chest_rest, atol=1e-12)
 
 
-def test_operator_waist_is_against_the_first_measured_chest(waist, chest_rest):
-    """A clip whose first frame has no chest, then the rest, a 0.3 rad yaw and a pitch past the range: the rest is
-    the first measured chest, the frame without one is NaN; a clip without any measured chest gives None."""
+def test_published_waist_is_against_the_first_measured_chest(robot14, workspace, chest_rest):
+    """What the eval scores against: the waist angles the retargeter published, per frame seq. A clip whose first
+    frame has no chest, then the rest, a 0.3 rad yaw and a pitch past the range: the rest is the first measured
+    chest, the frame without one is NaN; a clip without any measured chest gives None."""
     frames = [
         make_frame(0, 0.0),
         _with_chest(make_frame(1, 0.01), chest_rest),
         _with_chest(make_frame(2, 0.02), rot(Z, 0.3) @ chest_rest),
         _with_chest(make_frame(3, 0.03), rot(Y, 0.7) @ chest_rest),
     ]
-    W = operator_waist(frames, waist)
+    rt = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    W = published_waist([rt.step(f) for f in frames])
     assert W.shape == (4, 3) and np.isnan(W[0]).all()
     np.testing.assert_allclose(W[1:], [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.5]], atol=1e-12)
-    assert operator_waist([make_frame(0, 0.0), make_frame(1, 0.01)], waist) is None
+    rt = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    assert published_waist([rt.step(make_frame(0, 0.0)), rt.step(make_frame(1, 0.01))]) is None
 
 
 def test_waist_vs_operator_is_the_largest_joint_gap_of_the_tracked_frame(robot17):
