@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from tqdm import tqdm
@@ -35,6 +36,7 @@ from services.solver.cli import SWITCHES, add_switches, switch_values
 from services.solver.core import SATURATION_TRIGGERS, SolverConfig
 from services.solver.registry import ALGORITHMS
 from shared.robot.pinocchio_model import build_robot_model
+from shared.robot.profile import load_profile
 
 log = logging.getLogger("mimic.eval")
 #: Retarget options that move the published targets away from the plain retargeted ones (flag help):
@@ -98,6 +100,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=RetargetConfig().elbow_placement,
         choices=ELBOW_PLACEMENTS,
         help="swivel: elbow targets reachable with the wrist target; mapped: the paper's eqs. 1-3 per axis",
+    )
+    p.add_argument(
+        "--max-joint-velocity",
+        type=_speed_cap,
+        default=None,
+        metavar="RAD_S",
+        help="cap every joint's speed at this [rad/s] instead of the profile's max_joint_velocity (the G1's: 6): "
+        "the solvers' box, mink's limits and the sim servo all take it (what a faster robot profile would do)",
     )
     p.add_argument(
         "--velocity-tau",
@@ -184,10 +194,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
 
+def _speed_cap(text: str) -> float:
+    """``--max-joint-velocity``: a finite speed > 0 [rad/s], else a one-line usage error."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a speed in rad/s, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite speed > 0 [rad/s], got {text!r}")
+    return v
+
+
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
     algos, solver, wqp_weights, retarget = _settings(args)
-    robot = build_robot_model(with_waist=not args.no_waist)
+    profile = load_profile()
+    if getattr(args, "max_joint_velocity", None) is not None:
+        profile = replace(profile, max_joint_velocity=args.max_joint_velocity)
+    robot = build_robot_model(profile, with_waist=not args.no_waist)
     ik_check = not getattr(args, "no_ik_check", False)
     sim = not args.no_sim
     # The level-1 tick mask comes from the strict hierarchy, so run it first.
@@ -273,7 +297,9 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)} | _adjustment_summary(clips_out),
         "paper": PAPER,
     }
-    result["settings"] = _settings_json(args, algos, solver, wqp_weights, retarget, robot.nq)
+    result["settings"] = _settings_json(
+        args, algos, solver, wqp_weights, retarget, robot.nq, robot.profile.max_joint_velocity
+    )
     result["settings"] |= {
         "skeleton_map": getattr(args, "skeleton_map", None),
         "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
@@ -369,6 +395,7 @@ def _settings_json(
     wqp_weights: tuple[float, ...] | None,
     retarget: dict,
     dof: int,
+    max_joint_velocity: float,
 ) -> dict:
     """What ran, for the result JSON (anyone can rerun it from these)."""
     return {
@@ -381,6 +408,7 @@ def _settings_json(
         # every SolverConfig field the runs used (the shipped defaults unless a flag changed one)
         "solver": asdict(SolverConfig(**solver)),
         "dof": dof,
+        "max_joint_velocity": max_joint_velocity,
         "wrist_only": getattr(args, "wrist_only", False),
         "posture_policy": getattr(args, "posture_policy", None),
         "sim": not args.no_sim,

@@ -1,12 +1,12 @@
 """Saturated wrists: the wrist task velocity a tick aims at when the wrists cannot be met within the joint box.
 
 Why (issue 12, the vigorous clips; ``mimic eval --no-sim``): a running operator's hands move at 1-3.4 m/s, beyond
-what the G1's 4 rad/s joints give the wrists, so level 1 cannot be met on 60-80 % of the ticks of dash_active,
-dash_proud and run_happy. The strict hierarchy then keeps level 1's least-squares optimum, a vertex of the box
-with 9-10 of the 17 joints at a velocity bound (the wrist joints too: they spin at full speed for the few cm/s
-their 4.6 cm lever gives the wrist frame): the set of equally good velocities is a point, the elbows get nothing,
-and the posture drifts wherever the greedy wrist steps take it (run_happy's elbows 11 cm off even on the ticks
-the wrists are met, against 3.9 cm for the weighted QP and 3.7 cm for mink).
+what the G1's joints gave the wrists at the 4 rad/s cap of the time, so level 1 could not be met on 60-80 % of the
+ticks of dash_active, dash_proud and run_happy. The strict hierarchy then keeps level 1's least-squares optimum, a
+vertex of the box with 9-10 of the 17 joints at a velocity bound (the wrist joints too: they spin at full speed for
+the few cm/s their 4.6 cm lever gives the wrist frame): the set of equally good velocities is a point, the elbows
+get nothing, and the posture drifts wherever the greedy wrist steps take it (run_happy's elbows 11 cm off even on
+the ticks the wrists are met, against 3.9 cm for the weighted QP and 3.7 cm for mink).
 
 What this does instead, only on those ticks: the wrist level and the levels below are traded in one weighted QP
 (``WeightedQp``, wrist rows weighted ``weight`` against 1 for every lower level), with the wrist level's loss

@@ -53,7 +53,7 @@ def test_amax_beside_vmax():
             lambda t: t.replace('waist = ["waist_yaw_joint",', 'waist = ["left_elbow_joint", "waist_yaw_joint",'),
             "twice",
         ),
-        (lambda t: t.replace("max_joint_velocity = 4.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
+        (lambda t: t.replace("max_joint_velocity = 6.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
         (lambda t: t.replace("left_shoulder_pitch_joint = -0.3", "left_knee_joint = -0.3"), "arms_out"),
         (
             lambda t: re.sub(r"^waist_pitch_joint = .*$", "waist_pitch_joint = 0.0", t, flags=re.M),

@@ -46,6 +46,7 @@ def make_sequence(n: int = N, expected: list | None = None):
     """
     core = SimCore(config=SimConfig(watchdog=1.0))
     rng = np.random.default_rng(0)
+    q0 = core.q.copy()
     out = []
     for k in range(n):
         hdr = Header(k, k * DT, time.time_ns() - 5_000_000)  # entered the bus 5 ms ago
@@ -57,7 +58,9 @@ def make_sequence(n: int = N, expected: list | None = None):
             for t in TARGET_NAMES
         }
         out.append(TaskTargets(hdr, targets).encode())
-        q = core.q.copy()
+        # An elbow swinging about the start pose (about the measured pose, the swings added up and walked the elbow
+        # into its stop once the servo followed them faster than 4 rad/s: commands rejected for the limits).
+        q = q0.copy()
         q[core.joint_names.index(core.robot.profile.arms["left"].elbow)] += 0.2 * math.sin(k / 5)
         for sid in ("main", "alt"):
             cmd = JointCommand(hdr, sid, "hqp", list(core.joint_names), q, 0 * q, [1e-3, 2e-3, 5e-2], 0.2)

@@ -145,8 +145,11 @@ def test_solver_core_commands_stay_within_limits(robot, algo, case):
     # The final clamp guarantees the limits above whatever the algorithm did: it must never have acted.
     assert core.counts["safety_clamps"] == 0, core.counts
     if case in ("unreachable", "stretched"):
-        # Never reachable: the solver must not claim it follows.
-        assert statuses["ok"] == 0 and statuses["infeasible"] > 0.9 * N_TICKS, dict(statuses)
+        # Never reachable: the solver must not claim it follows. "collision" is infeasible too, with a damper
+        # named as the blocker: at the G1's 6 rad/s the arms get far enough within the run for a hand to near the
+        # body (4 rad/s did not).
+        unmet = statuses["infeasible"] + statuses["collision"]
+        assert statuses["ok"] == 0 and unmet > 0.9 * N_TICKS, dict(statuses)
     if case == "jump_1m":
         # The metre jump cannot be followed within vmax: reported as soon as it happens.
         assert statuses["infeasible"] > 0, dict(statuses)

@@ -31,13 +31,21 @@ def test_levels_on_joint_bounds_are_solved_in_both_paths(bvh_clips, robot17):
     fast = core.algorithm
     ref = HqpNullspace(fast.backend, eps=fast.eps, compiled=False)
     solve = fast.solve_problem
-    bad = []
+    bad, retried = [], []
 
     def both(p):
         b = ref.solve_matrices([x.copy() for x in p.As], [x.copy() for x in p.bs], p.lb.copy(), p.ub.copy(), p.ineq)
         a = solve(p)
         for path, s in (("compiled", a), ("numpy", b)):
-            if "kept levels" in s.reason or not np.all((s.qd >= p.lb) & (s.qd <= p.ub)):
+            if s.reason.startswith("level 1 QP") and p.ineq is not None:
+                # Damper rows each feasible but not together with the box (a hand closing in faster than the
+                # joints can brake within a tick: none on these clips at the G1's 6 rad/s, 8 ticks at 10): SolverCore
+                # relaxes them to the braking velocity and solves again (counted below if that fails too). Not this
+                # test's case.
+                retried.append(path)
+                continue
+            # (round-off only: at the G1's 6 rad/s 154 answers of these clips sit up to 6e-14 rad/s past a bound)
+            if "kept levels" in s.reason or not np.all((s.qd >= p.lb - 1e-12) & (s.qd <= p.ub + 1e-12)):
                 bad.append((path, s.reason))
         return a
 
@@ -45,4 +53,5 @@ def test_levels_on_joint_bounds_are_solved_in_both_paths(bvh_clips, robot17):
     frames = clip_targets(paths)
     step_through(core, frames)
     assert bad == []
+    assert core.counts["failed"] == 0, (core.counts, len(retried))  # every relaxed retry solved
     assert fast.widened >= 1 and ref.widened >= 1

@@ -75,15 +75,17 @@ def test_recovery_leads_the_arm_out_of_the_kick_lock_keeping_the_wrist(robot, ki
     assert el.min() > 8.0 and np.percentile(wr_locked, 99) < 0.3, (el.min(), np.percentile(wr_locked, 99))
     t, el, wr, events = out[True]
     # With it: one recovery, detected after its 0.1 s window; the arm swings through the straight elbow to the
-    # folded branch (the elbow error rises to ~19 cm on the way) and is back under 3 cm 0.8 s after the window
-    # opened (measured 0.79 s; the elbow joint travels 2 rad at the 4 rad/s cap), under 1 cm from 0.85 s on
-    # (measured max 0.82) ...
+    # folded branch (the elbow error rises to ~19 cm on the way) and is back under 3 cm 0.6 s after the window
+    # opened (measured 0.58 s at the G1's 6 rad/s; 0.79 s at 4, the elbow joint travelling 2 rad), under 1 cm from
+    # 0.85 s on (measured max 0.86) ...
     assert events == 1
     back = t[np.argmax(el < 3.0)]
-    assert el[t < 0.1].min() > 8.0 and back <= 0.85, back
+    assert el[t < 0.1].min() > 8.0 and back <= 0.7, back
     assert el[t >= 0.85].max() < 1.0, el[t >= 0.85].max()
-    # ... and level 1 keeps its strict priority throughout: the wrist as close as in the lock (measured the same).
-    assert np.percentile(wr, 99) <= np.percentile(wr_locked, 99) + 0.01 and wr.max() <= wr_locked.max() + 0.01
+    # ... and level 1 keeps its strict priority throughout: the wrist as close as in the lock (p99 0.183 against
+    # 0.171 cm, max 0.248 against 0.247: each tick strict, the faster swing's second-order drift aside, see
+    # test_wrist_only_solver.py).
+    assert np.percentile(wr, 99) <= np.percentile(wr_locked, 99) + 0.02 and wr.max() <= wr_locked.max() + 0.01
 
 
 def test_recovery_with_the_shipped_self_collision_rows_ends_at_the_torso(robot, kick):

@@ -60,10 +60,11 @@ def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot):
             "recovery_only": {"range_centring_cost": 0.0},
         },
     )
-    # Without the joint-range centring the elbow sits ~30 cm off for more than 0.4 s (the lock-up the
-    # issue reports: shoulder roll and yaw and the waist pitch drifted into their stops) ...
-    assert out["no_centring"][0] > 0.4 and out["no_centring"][1] > 25.0, out
-    # ... with the shipped defaults it never leaves 10 cm (measured max 3.7 cm), and the wrists (level 1)
+    # Without the joint-range centring the elbow sits ~25 cm off for more than 0.3 s (the lock-up the
+    # issue reports: shoulder roll and yaw and the waist pitch drifted into their stops; measured 0.40 s and
+    # 26.0 cm at the G1's 6 rad/s, over 0.4 s and 29.7 cm at the 4 rad/s of session 12) ...
+    assert out["no_centring"][0] > 0.3 and out["no_centring"][1] > 22.0, out
+    # ... with the shipped defaults it never leaves 10 cm (measured max 4.4 cm), and the wrists (level 1)
     # are no worse.
     assert out["shipped"][0] == 0.0, out
     assert out["shipped"][1] < 0.25 * out["no_centring"][1], out
