@@ -106,7 +106,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=_speed_cap,
         default=None,
         metavar="RAD_S",
-        help="cap every joint's speed at this [rad/s] instead of the profile's max_joint_velocity (the G1's: 6): "
+        help="cap every joint's speed at this [rad/s] instead of the profile's max_joint_velocity (the G1's: 8): "
         "the solvers' box, mink's limits and the sim servo all take it (what a faster robot profile would do)",
     )
     p.add_argument(

@@ -32,7 +32,7 @@ ACTION_DIM = 3
 ARM_STATE_DIM = 6
 #: Largest |q̇₀| per joint [rad/s], for the expert's labels and the policy's actions alike: seed 004
 #: leaves "occasional wrong outputs" of the network to future filtering; a bound keeps any output a
-#: gentle pull (the G1 profile caps the joints at 6 rad/s), and the expert's saturated labels teach the same.
+#: gentle pull (the G1 profile caps the arm joints at 8 rad/s), and the expert's saturated labels teach the same.
 ACTION_LIMIT = 2.0
 #: State entries by name (for the model file's metadata).
 STATE_LAYOUT = ("Qw", "Qx", "Qy", "Qz", "px", "py", "pz", *(f"q{i}" for i in range(7)))

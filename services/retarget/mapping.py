@@ -34,7 +34,7 @@ import numpy as np
 #: is not the default: on the 13 clips measured (``mimic eval --no-sim``, issue 12) it made every wrist + elbow pair
 #: reachable and halved the vigorous clips' elbow errors, but the gestures' wrist errors grew (0.27 -> 0.32 cm
 #: mean), since the operator's full stretch maps to the robot's and the arm then outran the 4 rad/s cap of the time
-#: (6 rad/s since session 14).
+#: (8 rad/s since session 14).
 MODES: tuple[str, ...] = ("bounded", "reach", "paper", "incremental")
 #: Elbow target placement (first = default): see :class:`services.retarget.retargeter.RetargetConfig`.
 ELBOW_PLACEMENTS: tuple[str, ...] = ("swivel", "mapped")

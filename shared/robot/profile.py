@@ -78,6 +78,8 @@ class RobotProfile:
         human: target name -> canonical human bone.
         rest: joint name -> rest angle [rad] (unlisted joints rest at 0).
         max_joint_velocity: cap on every joint speed [rad/s].
+        joint_velocities: joint -> a lower speed cap of its own [rad/s] (the profile's ``[velocity_limits]``,
+            optional): a joint's limit is the smallest of its URDF limit, ``max_joint_velocity`` and this entry.
         max_joint_acceleration: cap on every joint acceleration [rad/s^2].
         joint_accelerations: joint -> acceleration limit [rad/s^2] its motor can deliver (the
             profile's ``[acceleration_limits]``, derived by ``python -m shared.robot.accel_limits``).
@@ -107,6 +109,7 @@ class RobotProfile:
     actuators: dict[str, float] = field(default_factory=dict)
     arms_out: dict[str, float] = field(default_factory=dict)
     joint_accelerations: dict[str, float] = field(default_factory=dict)
+    joint_velocities: dict[str, float] = field(default_factory=dict)
     motor_acceleration_limits: bool = False
     source: Path | None = None
     collision: CollisionSpec | None = None
@@ -117,6 +120,11 @@ class RobotProfile:
         (17,) with the waist, (14,) without on the G1.
         """
         return (self.waist if with_waist else ()) + tuple(j for s in SIDES for j in self.arms[s].joints)
+
+    def joint_velocity(self, joint: str) -> float:
+        """Speed cap of ``joint`` [rad/s]: its ``[velocity_limits]`` entry, if any, capped by ``max_joint_velocity``
+        (the URDF's own limit applies on top, in ``build_robot_model``)."""
+        return min(self.joint_velocities.get(joint, math.inf), self.max_joint_velocity)
 
     def joint_acceleration(self, joint: str) -> float:
         """Acceleration limit of ``joint`` [rad/s^2]: with ``motor_acceleration_limits``, its
@@ -187,6 +195,9 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
             joint_accelerations={
                 k: _number(raw["acceleration_limits"], k, "[acceleration_limits]")
                 for k in raw.get("acceleration_limits", {})
+            },
+            joint_velocities={
+                k: _number(raw["velocity_limits"], k, "[velocity_limits]") for k in raw.get("velocity_limits", {})
             },
             motor_acceleration_limits=_flag(model, "motor_acceleration_limits", "[model]"),
             source=path,
@@ -270,12 +281,16 @@ def _validate(prof: RobotProfile, path: Path) -> None:
     # Entries for joints the profile does not control are allowed (a variant that drops the waist keeps
     # the table), but each must be a joint of the URDF: a typo must not silently leave a joint uncapped.
     urdf_joints = set(re.findall(r'<joint\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
-    unknown = sorted(set(prof.joint_accelerations) - urdf_joints)
-    if unknown:
-        raise ProfileError(f"{path}: [acceleration_limits] names joints that are not in the URDF: {unknown}")
-    for joint, a in prof.joint_accelerations.items():
-        if not (math.isfinite(a) and a > 0.0):
-            raise ProfileError(f"{path}: [acceleration_limits] {joint} must be a positive number, got {a}")
+    for table, limits in (
+        ("acceleration_limits", prof.joint_accelerations),
+        ("velocity_limits", prof.joint_velocities),
+    ):
+        unknown = sorted(set(limits) - urdf_joints)
+        if unknown:
+            raise ProfileError(f"{path}: [{table}] names joints that are not in the URDF: {unknown}")
+        for joint, v in limits.items():
+            if not (math.isfinite(v) and v > 0.0):
+                raise ProfileError(f"{path}: [{table}] {joint} must be a positive number, got {v}")
     if prof.motor_acceleration_limits and not prof.joint_accelerations:
         raise ProfileError(f"{path}: [model] motor_acceleration_limits = true needs an [acceleration_limits] table")
 

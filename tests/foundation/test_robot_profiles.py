@@ -31,6 +31,32 @@ def test_g1_profile_roles():
     assert prof.max_joint_acceleration > 0 and set(prof.arms_out) <= set(prof.controlled_joints())
 
 
+def test_velocity_limits_table_lowers_its_joints_only(tmp_path):
+    """A [velocity_limits] entry caps its joint below [model] max_joint_velocity; the other joints keep the cap, and
+    an entry above the cap changes nothing (each joint: the smallest of entry, cap and URDF limit)."""
+    rm = build_robot_model()
+    prof = rm.profile
+    assert prof.joint_velocities, "the G1 profile has a [velocity_limits] table"
+    for j, v in zip(rm.joint_names, rm.vmax):
+        want = min(prof.joint_velocities.get(j, np.inf), prof.max_joint_velocity)
+        assert v == pytest.approx(want), (j, v, want)
+    assert rm.vmax[0] < prof.max_joint_velocity  # the waist, listed in the table
+    fast_elbow = _variant(
+        tmp_path,
+        "fast_elbow",
+        lambda t: t.replace("[velocity_limits]\n", "[velocity_limits]\nleft_elbow_joint = 100.0\n"),
+    )
+    slow_elbow = _variant(
+        tmp_path,
+        "slow_elbow",
+        lambda t: t.replace("[velocity_limits]\n", "[velocity_limits]\nleft_elbow_joint = 0.5\n"),
+    )
+    e = rm.joint_names.index("left_elbow_joint")
+    assert build_robot_model(fast_elbow).vmax[e] == prof.max_joint_velocity
+    slow = build_robot_model(slow_elbow)
+    assert slow.vmax[e] == 0.5 and np.array_equal(np.delete(slow.vmax, e), np.delete(rm.vmax, e))
+
+
 def test_amax_beside_vmax():
     rm = build_robot_model()
     assert rm.amax.shape == rm.vmax.shape == (rm.nq,)
@@ -53,7 +79,7 @@ def test_amax_beside_vmax():
             lambda t: t.replace('waist = ["waist_yaw_joint",', 'waist = ["left_elbow_joint", "waist_yaw_joint",'),
             "twice",
         ),
-        (lambda t: t.replace("max_joint_velocity = 6.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
+        (lambda t: t.replace("max_joint_velocity = 8.0", 'max_joint_velocity = "fast"'), "max_joint_velocity"),
         (lambda t: t.replace("left_shoulder_pitch_joint = -0.3", "left_knee_joint = -0.3"), "arms_out"),
         (
             lambda t: re.sub(r"^waist_pitch_joint = .*$", "waist_pitch_joint = 0.0", t, flags=re.M),
@@ -76,6 +102,18 @@ def test_amax_beside_vmax():
         (
             lambda t: t.replace("[acceleration_limits]\n", "[acceleration_limits]\nleft_kneee_joint = 10.0\n"),
             r"\[acceleration_limits\] names joints that are not in the URDF: \['left_kneee_joint'\]",
+        ),
+        (
+            lambda t: t.replace("[velocity_limits]\n", "[velocity_limits]\nwaist_yawn_joint = 1.0\n"),
+            r"\[velocity_limits\] names joints that are not in the URDF: \['waist_yawn_joint'\]",
+        ),
+        (
+            lambda t: t.replace("[velocity_limits]\n", "[velocity_limits]\nleft_elbow_joint = -2.0\n"),
+            r"\[velocity_limits\] left_elbow_joint must be a positive number",
+        ),
+        (
+            lambda t: t.replace("[velocity_limits]\n", '[velocity_limits]\nleft_elbow_joint = "slow"\n'),
+            r"\[velocity_limits\] left_elbow_joint must be a number",
         ),
     ],
 )

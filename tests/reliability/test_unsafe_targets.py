@@ -146,8 +146,8 @@ def test_solver_core_commands_stay_within_limits(robot, algo, case):
     assert core.counts["safety_clamps"] == 0, core.counts
     if case in ("unreachable", "stretched"):
         # Never reachable: the solver must not claim it follows. "collision" is infeasible too, with a damper
-        # named as the blocker: at the G1's 6 rad/s the arms get far enough within the run for a hand to near the
-        # body (4 rad/s did not).
+        # named as the blocker: with the G1's 8 rad/s arms they get far enough within the run for a hand to near
+        # the body (4 rad/s did not).
         unmet = statuses["infeasible"] + statuses["collision"]
         assert statuses["ok"] == 0 and unmet > 0.9 * N_TICKS, dict(statuses)
     if case == "jump_1m":

@@ -39,12 +39,12 @@ def test_levels_on_joint_bounds_are_solved_in_both_paths(bvh_clips, robot17):
         for path, s in (("compiled", a), ("numpy", b)):
             if s.reason.startswith("level 1 QP") and p.ineq is not None:
                 # Damper rows each feasible but not together with the box (a hand closing in faster than the
-                # joints can brake within a tick: none on these clips at the G1's 6 rad/s, 8 ticks at 10): SolverCore
-                # relaxes them to the braking velocity and solves again (counted below if that fails too). Not this
-                # test's case.
+                # joints can brake within a tick: 2 ticks of these clips with the G1's limits, arms 8 rad/s and waist
+                # 3; 8 with every joint at 10): SolverCore relaxes them to the braking velocity and solves again
+                # (counted below if that fails too). Not this test's case.
                 retried.append(path)
                 continue
-            # (round-off only: at the G1's 6 rad/s 154 answers of these clips sit up to 6e-14 rad/s past a bound)
+            # (round-off only: with every joint at 6 rad/s, 154 answers of these clips sat up to 6e-14 rad/s past one)
             if "kept levels" in s.reason or not np.all((s.qd >= p.lb - 1e-12) & (s.qd <= p.ub + 1e-12)):
                 bad.append((path, s.reason))
         return a

@@ -61,8 +61,9 @@ def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot):
         },
     )
     # Without the joint-range centring the elbow sits ~25 cm off for more than 0.3 s (the lock-up the
-    # issue reports: shoulder roll and yaw and the waist pitch drifted into their stops; measured 0.40 s and
-    # 26.0 cm at the G1's 6 rad/s, over 0.4 s and 29.7 cm at the 4 rad/s of session 12) ...
+    # issue reports: shoulder roll and yaw and the waist pitch drifted into their stops; measured 0.35 s and
+    # 25.0 cm with the G1's limits, arms 8 rad/s and waist 3, over 0.4 s and 29.7 cm at the 4 rad/s of session 12)
+    # ...
     assert out["no_centring"][0] > 0.3 and out["no_centring"][1] > 22.0, out
     # ... with the shipped defaults it never leaves 10 cm (measured max 4.4 cm), and the wrists (level 1)
     # are no worse.

@@ -86,11 +86,12 @@ def test_policy_level_never_changes_the_wrists_and_a_closed_gate_is_the_rest_pos
     el = [np.array([robot17.frame_poses(q)["left_elbow"][0] for q in qs]) for qs in (q_rest, q_pol)]
     # The (random) policy moves the elbows by millimetres ...
     assert np.max(np.linalg.norm(el[0] - el[1], axis=1)) > 0.004
-    # ... and the wrist positions (level 1) by 0.15 mm at most (measured 0.13 mm with the G1's 6 rad/s joints,
-    # 0.066 mm with the 4 rad/s of session 13): strict priority within each tick. Not exactly zero: the 30 Hz
-    # steps without feed-forward exceed the velocity limits on some ticks ("infeasible"), where the wrist's
-    # residual depends on the arm's configuration, and the acceleration bound of the next tick depends on this
-    # tick's velocity, both of which the lower level did change (the faster the joints, the further).
+    # ... and the wrist positions (level 1) by 0.15 mm at most (measured 0.10 mm with the G1's limits, arms 8
+    # rad/s and waist 3; 0.13 with every joint at 6, 0.066 at 4): strict priority within each tick. Not exactly
+    # zero: the 30 Hz steps without feed-forward exceed the velocity limits on some ticks ("infeasible"), where
+    # the wrist's residual depends on the arm's configuration, and the acceleration bound of the next tick
+    # depends on this tick's velocity, both of which the lower level did change (the faster the joints, the
+    # further).
     assert np.max(np.linalg.norm(wr_rest - wr_pol, axis=2)) < 1.5e-4
     # A gate that never opens is exactly the rest-posture level.
     np.testing.assert_allclose(q_shut, q_rest, atol=1e-9)
@@ -155,10 +156,10 @@ def test_elbow_kind_policy_drives_the_elbow_task_below_the_wrists(robot17, tmp_p
     wr_pol = np.array([[robot17.frame_poses(q)[w][0] for w in WRISTS] for q in q_pol])
     # Level 1 untouched up to the infeasible ticks' configuration dependence (see the test above), the elbow
     # level (shared with the wrist orientations) swivelling further than the joint-velocity level does: measured
-    # 1.1 mm in the first 25 ms from rest at the G1's 6 rad/s (0.31 mm at the 4 rad/s of session 13), 0.30 mm after
-    # 60 ms. Each tick meets the wrist velocities (residual ~1e-5), but a velocity-level step is exact to first
-    # order only: the second-order drift of a null-space swivel grows with its speed squared (0.02 mm a tick at
-    # 6 rad/s on a 0.3 m lever), which the wrist gain then closes.
+    # 0.97 mm in the first 25 ms from rest with the G1's limits, arms 8 rad/s and waist 3 (0.31 mm with every joint
+    # at 4 rad/s), 0.24 mm after 60 ms. Each tick meets the wrist velocities (residual ~1e-5), but a velocity-level
+    # step is exact to first order only: the second-order drift of a null-space swivel grows with its speed squared
+    # (0.04 mm a tick at 8 rad/s on a 0.3 m lever), which the wrist gain then closes.
     gap = np.linalg.norm(wr_rest - wr_pol, axis=2).max(1)
     assert gap.max() < 1.5e-3 and gap[30:].max() < 5e-4, (gap.max(), gap[30:].max())
     assert "held" not in {c.status for c in cmds[10:]}
@@ -204,6 +205,6 @@ def test_swivel_kind_policy_gives_the_elbow_task_its_angle_on_the_wrist_targets_
         assert np.linalg.norm(task.p_target - frames[i].centre) == pytest.approx(frames[i].upper, abs=1e-6)
     wr_rest = np.array([[robot17.frame_poses(q)[w][0] for w in WRISTS] for q in q_rest])
     wr_pol = np.array([[robot17.frame_poses(q)[w][0] for w in WRISTS] for q in q_pol])
-    # level 1 untouched (as the elbow kind's: measured 0.76 mm in the first ticks from rest, 0.07 mm after 60 ms)
+    # level 1 untouched (as the elbow kind's: measured 1.9 mm in the first ticks from rest, 0.07 mm after 60 ms)
     gap = np.linalg.norm(wr_rest - wr_pol, axis=2).max(1)
-    assert gap.max() < 1.5e-3 and gap[30:].max() < 5e-4, (gap.max(), gap[30:].max())
+    assert gap.max() < 2.5e-3 and gap[30:].max() < 5e-4, (gap.max(), gap[30:].max())
