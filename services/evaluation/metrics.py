@@ -238,10 +238,6 @@ def has_waist(robot: RobotModel) -> bool:
     return bool(robot.profile.waist) and all(j in robot.joint_names for j in robot.profile.waist)
 
 
-def _waist_cols(robot: RobotModel) -> list[int]:
-    return [robot.joint_names.index(j) for j in robot.profile.waist]
-
-
 def waist_vs_operator(trace: Trace, robot: RobotModel, operator: np.ndarray) -> dict:
     """``waist_vs_operator_deg``: per tick, the largest difference [deg] between the robot's waist joints and the
     operator's torso as waist angles in the frame the tick tracked (``trace.seq``); ticks before the first frame or
@@ -252,7 +248,8 @@ def waist_vs_operator(trace: Trace, robot: RobotModel, operator: np.ndarray) -> 
     """
     seq = np.asarray(trace.seq, dtype=int)
     ok = (seq >= 0) & (seq < len(operator))
-    d = np.degrees(np.abs(np.asarray(trace.q)[ok][:, _waist_cols(robot)] - operator[seq[ok]])).max(axis=1)
+    waist_q = np.asarray(trace.q)[ok][:, robot.indices(robot.profile.waist)]
+    d = np.degrees(np.abs(waist_q - operator[seq[ok]])).max(axis=1)
     return {"waist_vs_operator_deg": _stats(d)}
 
 
@@ -260,7 +257,7 @@ def operator_waist_turn(operator: np.ndarray, robot: RobotModel) -> dict:
     """``operator_waist_deg``: per frame with them, the largest departure [deg] of the operator's waist angles
     (N, w) [rad] from the robot's waist rest: how far the operator's own torso turned, the scale of
     ``waist_vs_operator_deg``."""
-    return _stats(np.degrees(np.abs(operator - robot.q_rest[_waist_cols(robot)])).max(axis=1))
+    return _stats(np.degrees(np.abs(operator - robot.q_rest[robot.indices(robot.profile.waist)])).max(axis=1))
 
 
 def reachable_mask(reference: Trace) -> np.ndarray:

@@ -79,8 +79,7 @@ class WaistMap:
             raise ValueError(f"robot model lacks the waist joints {missing} (build it with the waist)")
         self.robot = robot
         self.joints = tuple(prof.waist)
-        idx = [robot.joint_names.index(j) for j in self.joints]
-        self._idx = np.array(idx)
+        self._idx = np.array(robot.indices(self.joints))
         m, d = robot.model, robot.model.createData()
         last = m.getJointId(self.joints[-1])
         pin.computeJointJacobians(m, d, robot.q_rest)

@@ -481,7 +481,7 @@ class SolverCore:
         if self.centring_task is not None:
             self.levels = [self.levels[0], [*self.levels[1], self.centring_task], *self.levels[2:]]
         #: (w,) positions in q of the waist joints, profile order (empty without a waist in the model)
-        self._waist_idx = np.array([robot.joint_names.index(j) for j in robot.profile.waist if j in robot.joint_names])
+        self._waist_idx = np.array(robot.indices(robot.profile.waist), dtype=int)
         #: the pull of the waist towards the operator's torso beside the elbows (``waist_follow_cost``), else None
         self.waist_task: PostureTask | None = None
         if cfg.waist_follow_cost > 0 and len(self._waist_idx) and cfg.algo in STRICT_ALGORITHMS:
