@@ -30,6 +30,7 @@ from services.solver.core import SolverConfig
 from services.solver.targets import TargetTracker
 from shared.messages import TARGET_NAMES, Header, JointCommand, TaskTargets
 from shared.robot.pinocchio_model import RobotModel
+from shared.targets import WRISTS
 
 #: Algorithm name of the peer in ``mimic eval --algos``.
 MINK = "mink"
@@ -98,12 +99,23 @@ class MinkPeer:
         )
         #: the wrists' orientation cost when their target carries a rotation (``use_rotation``), as our solvers
         self.orientation_cost = cfg.wrist_orientation_cost
+        # A wrist whose orientation frame is another link (``[orientation_frames]``: the G1's hand, past its wrist
+        # point) gets two tasks, as in our solvers: the position on one frame, the orientation on the other.
+        self.rotation_tasks = {
+            name: mink.FrameTask(
+                prof.orientation_frame(name), "body", position_cost=0.0, orientation_cost=cfg.wrist_orientation_cost
+            )
+            for name in WRISTS
+            if prof.orientation_frame(name) != prof.frames[name]
+        }
         self.tasks = {
             name: mink.FrameTask(
                 prof.frames[name],
                 "body",
-                position_cost=cfg.wrist_position_cost if name.endswith("wrist") else cfg.elbow_cost,
-                orientation_cost=cfg.wrist_orientation_cost if name.endswith("wrist") else 0.0,
+                position_cost=cfg.wrist_position_cost if name in WRISTS else cfg.elbow_cost,
+                orientation_cost=cfg.wrist_orientation_cost
+                if name in WRISTS and name not in self.rotation_tasks
+                else 0.0,
             )
             for name in TARGET_NAMES
         }
@@ -138,11 +150,15 @@ class MinkPeer:
                 s = self.tracker.sample(name, t + self.dt)
                 if s is None:
                     continue  # no target yet (a clip whose marker set lacks it): mink would raise
-                T = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(s.R), s.p)
-                task.set_target(self.T_world_base @ T)
-                if name.endswith("wrist"):
-                    task.set_orientation_cost(self.orientation_cost if s.use_rotation else 0.0)
+                T = self.T_world_base @ mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(s.R), s.p)
+                task.set_target(T)
                 tasks.append(task)
+                if name in WRISTS:
+                    rot = self.rotation_tasks.get(name, task)
+                    rot.set_orientation_cost(self.orientation_cost if s.use_rotation else 0.0)
+                    if rot is not task:
+                        rot.set_target(T)
+                        tasks.append(rot)
             qd_all = mink.solve_ik(conf, tasks, self.dt, self.solver, limits=self.limits)
             if self.bounds is not None:
                 lb, ub = self.bounds.compute(conf.q[self.qpos_idx], self._qd_prev, self.dt)

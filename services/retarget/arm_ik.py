@@ -66,6 +66,10 @@ class ArmIk:
         """Frame id (in this arm's model) of a robot frame or target name (``left_wrist``...)."""
         return self.model.getFrameId(self.robot.model.frames[self.robot.frame_id(name)].name)
 
+    def rotation_frame(self, name: str) -> int:
+        """Frame id (in this arm's model) of a target's orientation frame (``RobotModel.rotation_id``)."""
+        return self.model.getFrameId(self.robot.model.frames[self.robot.rotation_id(name)].name)
+
     def reset(self) -> None:
         """Start the next solve from ``q_fixed``'s pose (a new stream, or after a gap)."""
         self.q = self.q_start.copy()

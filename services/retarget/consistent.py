@@ -1,10 +1,12 @@
 """Wrist and elbow targets one arm posture meets together (``RetargetConfig.consistent_targets``).
 
 The retargeter maps the wrist position, the wrist orientation (eq. 4, forearm-relative) and the swivel
-elbow each on its own. The G1 arm has seven joints and its wrist frame sits 4.6 cm past the wrist
-pitch axis: once the wrist position and the elbow position are fixed, about one joint is left for the
-three orientation components, so the mapped triple is often not reachable together (on a slow
-gesture, ``guide_normal``, a third of the wrist + elbow pairs alone failed an IK check). Any solver then
+elbow each on its own. The G1 arm has seven joints, and with the wrist point on the hand link (4.6 cm past
+the wrist pitch axis; the profile before session 15) about one joint was left for the three orientation
+components once the wrist and elbow positions were fixed, so the mapped triple was often not reachable
+together (on a slow gesture, ``guide_normal``, a third of the wrist + elbow pairs alone failed an IK check).
+The shipped profile puts the wrist point on the pitch axis, which leaves the three wrist joints to the
+orientation, within their ranges. Any solver then
 spreads the disagreement over what it tracks: a strict hierarchy onto the elbow and the orientation, a
 weighted one onto the wrist.
 
@@ -77,6 +79,8 @@ class ConsistentArm:
         self.ik = ArmIk(robot, roles.joints, robot.q_rest, margin=RAW_POSITION_MARGIN)
         self.f_wrist = self.ik.frame(wrist_of(side))
         self.f_elbow = self.ik.frame(elbow_of(side))
+        #: the frame whose orientation is the wrist's (the hand, past the wrist point on the G1)
+        self.r_wrist = self.ik.rotation_frame(wrist_of(side))
         self.orientation_weight = orientation_weight
         self.iters = iters
         self._fresh = True
@@ -104,7 +108,7 @@ class ConsistentArm:
             (elbow position (3,) [m], wrist orientation (3, 3), elbow orientation (3, 3)) of the posture.
         """
         goals = [(self.f_wrist, wrist_p, WRIST_WEIGHT), (self.f_elbow, elbow_p, 1.0)]
-        rotation = (self.f_wrist, wrist_R, self.orientation_weight)
+        rotation = (self.r_wrist, wrist_R, self.orientation_weight)
 
         def run(iters: int) -> float:
             self.ik.solve(goals, rotation, iters=iters, tol=0.0, step_tol=STEP_TOL, max_step=MAX_STEP)
@@ -135,4 +139,4 @@ class ConsistentArm:
                 self._cooldown = RETRY_AFTER
         self._fresh = False
         elbow, elbow_R = self.ik.pose(self.f_elbow)
-        return elbow, self.ik.pose(self.f_wrist)[1], elbow_R
+        return elbow, self.ik.pose(self.r_wrist)[1], elbow_R

@@ -150,10 +150,12 @@ class WristRange:
         """Robot elbow link orientation (3, 3) implied by elbow and wrist targets (3,) [m]; None while the
         arm is straight with no earlier frame to carry.
 
-        With the wrist target orientation R (3, 3), the wrist joints' lever is taken out: the wrist frame
-        sits off the wrist axes (G1: 4.6 cm past the pitch axis), so a pitched hand moves the wrist
-        position, and the forearm of the positions, by up to ~15 deg. Each of ``iters`` iterations takes
-        the joint angles of the current estimate and moves the wrist back to where zero angles put it.
+        With the wrist target orientation R (3, 3), the wrist joints' lever is taken out: a wrist point
+        off the wrist axes (the G1's hand link, 4.6 cm past the pitch axis, the wrist point before session
+        15) moves when the hand pitches, and the forearm of the positions by up to ~15 deg; on the shipped
+        G1 (wrist point on the pitch axis) the lever is zero and the iterations change nothing. Each of
+        ``iters`` iterations takes the joint angles of the current estimate and moves the wrist back to where
+        zero angles put it.
         """
         elbow, wrist = np.asarray(elbow, dtype=float), np.asarray(wrist, dtype=float)
         F = self._forearm(elbow, wrist)

@@ -169,9 +169,11 @@ class SolverConfig:
             full wrist poses > elbows > posture. On the 16 real clips (``mimic eval``, DAQP): with 1
             the wrist pose is reachable on about half the ticks only (eq. 4 orientations and
             positions disagree) and the wrists miss by about 1 cm; with 3 the wrists and elbows are
-            best but the G1's wrist frame (4.6 cm past the pitch axis) leaves the orientations
-            about one free joint, 30 deg mean error; with 2 orientations are within 3 deg for
-            about 0.6 cm more elbow error.
+            best but the G1's wrist point of the time (the hand link, 4.6 cm past the pitch axis) left the
+            orientations about one free joint, 30 deg mean error; with 2 orientations are within 3 deg for
+            about 0.6 cm more elbow error. With the wrist point on the pitch axis (session 15; 25 clips,
+            ``mimic eval --no-sim``) 3 is still worse than 2: elbow mean 0.98 -> 1.28 cm over the clips
+            (byebye_happy 1.7 -> 10.0), rotation p99 <= 10 deg on 9 clips of 23 against 11.
         elbow_orientation_cost: weight [1/rad] of the elbow orientation rows, on level 2 beside the
             elbow positions (seed 000's elbow pose), used while the elbow targets carry
             ``use_rotation`` (retarget ``--elbow-rotation``; ``mimic eval --paper``).

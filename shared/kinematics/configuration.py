@@ -35,9 +35,9 @@ class Configuration:
         self.nv = robot.model.nv
         self.q = np.array(robot.q_rest if q is None else q, dtype=float)
         self._frame_cache: dict[str, int] = {}
-        #: per frame id, read once per update: (p (3,), R (3, 3)) and the (6, n) Jacobian
-        self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._jacobians: dict[int, np.ndarray] = {}
+        #: per frame or target name, read once per update: (p (3,), R (3, 3)) and the (6, n) Jacobian
+        self._poses: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._jacobians: dict[str, np.ndarray] = {}
         self.update(self.q)
 
     def frame_id(self, name: str) -> int:
@@ -64,35 +64,36 @@ class Configuration:
         self._jacobians.clear()
 
     def get_frame_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Pose of a frame in the base (pelvis) frame.
+        """Pose of a frame in the base (pelvis) frame; a target's rotation is that of its orientation frame
+        (``RobotModel.rotation_ids``: the G1's wrist position is the pitch axis, its orientation the hand's).
 
         Returns:
             p (3,) [m] and R (3, 3), read once per :meth:`update` and shared by every caller until the
             next one (do not write into them).
         """
-        fid = self._frame_cache.get(name)
-        if fid is None:
-            fid = self.frame_id(name)
-        pose = self._poses.get(fid)
+        pose = self._poses.get(name)
         if pose is None:
             # One conversion of the 4x4 placement (two for translation and rotation cost twice as much).
-            H = self.data.oMf[fid].homogeneous
-            pose = self._poses[fid] = (H[:3, 3], H[:3, :3])
+            H = self.data.oMf[self.frame_id(name)].homogeneous
+            rid = self.robot.rotation_ids.get(name)
+            pose = self._poses[name] = (H[:3, 3], H[:3, :3] if rid is None else self.data.oMf[rid].rotation)
         return pose
 
     def get_frame_jacobian(self, name: str) -> np.ndarray:
         """(6, n) Jacobian of a frame, LOCAL_WORLD_ALIGNED: rows [linear (3) [m/rad]; angular (3) [rad/rad]].
 
         The linear rows give the velocity of the frame origin expressed in the base
-        frame; the angular rows the angular velocity in the base frame. Read once per :meth:`update` and
-        shared by every caller until the next one (do not write into it).
+        frame; the angular rows the angular velocity in the base frame (of a target's orientation frame, as
+        :meth:`get_frame_pose`). Read once per :meth:`update` and shared by every caller until the next one
+        (do not write into it).
         """
-        fid = self._frame_cache.get(name)
-        if fid is None:
-            fid = self.frame_id(name)
-        J = self._jacobians.get(fid)
+        J = self._jacobians.get(name)
         if J is None:
-            J = self._jacobians[fid] = pin.getFrameJacobian(self.model, self.data, fid, _LWA)
+            J = pin.getFrameJacobian(self.model, self.data, self.frame_id(name), _LWA)
+            rid = self.robot.rotation_ids.get(name)
+            if rid is not None:
+                J[3:] = pin.getFrameJacobian(self.model, self.data, rid, _LWA)[3:]
+            self._jacobians[name] = J
         return J
 
     def integrate(self, v: np.ndarray, dt: float) -> np.ndarray:

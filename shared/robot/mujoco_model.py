@@ -10,7 +10,7 @@ world: the base is fixed, legs are held at rest by their servos.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -38,7 +38,9 @@ class MujocoRobot:
         model, data: MuJoCo model and data.
         joint_names: (n,) controlled joints (same order as the Pinocchio model).
         qpos_idx, dof_idx, act_idx: (n,) indices of those joints.
-        body_ids: target name -> body id of its frame.
+        body_ids: target name -> body id of its frame (position; orientation too unless in ``rotation_body_ids``).
+        rotation_body_ids: target name -> body id of its orientation frame, where the profile's
+            ``[orientation_frames]`` names another one (as ``RobotModel.rotation_ids``).
     """
 
     profile: RobotProfile
@@ -49,6 +51,7 @@ class MujocoRobot:
     dof_idx: np.ndarray
     act_idx: np.ndarray
     body_ids: dict[str, int]
+    rotation_body_ids: dict[str, int] = field(default_factory=dict)
 
     def set_q(self, q: np.ndarray) -> None:
         """Set controlled joint positions (n,) [rad] and servo targets, then run kinematics."""
@@ -62,7 +65,7 @@ class MujocoRobot:
         bid = self.body_ids[target]
         Rb = self.data.xmat[base].reshape(3, 3)
         pb = self.data.xpos[base]
-        R = self.data.xmat[bid].reshape(3, 3)
+        R = self.data.xmat[self.rotation_body_ids.get(target, bid)].reshape(3, 3)
         return Rb.T @ (self.data.xpos[bid] - pb), Rb.T @ R
 
 
@@ -150,6 +153,7 @@ def build_mujoco_robot(
     act_idx = np.array([model.actuator(n).id for n in names])
     body_ids = {t: model.body(f).id for t, f in prof.frames.items()}
     body_ids["__base__"] = model.body(prof.base_frame).id
+    rotation_body_ids = {t: model.body(f).id for t, f in prof.orientation_frames.items() if f != prof.frames[t]}
     # Every joint (legs too) starts, and is held, at the rest pose.
     for j in range(model.njnt):
         name = model.joint(j).name
@@ -157,4 +161,4 @@ def build_mujoco_robot(
         data.qpos[model.jnt_qposadr[j]] = val
         data.ctrl[model.actuator(name).id] = val
     mujoco.mj_forward(model, data)
-    return MujocoRobot(prof, model, data, names, qpos_idx, dof_idx, act_idx, body_ids)
+    return MujocoRobot(prof, model, data, names, qpos_idx, dof_idx, act_idx, body_ids, rotation_body_ids)

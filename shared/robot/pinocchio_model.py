@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -24,7 +24,10 @@ class RobotModel:
         amax: (n,) acceleration limits [rad/s^2] (``RobotProfile.joint_acceleration``: the global
             ``max_joint_acceleration``, or per joint the ``[acceleration_limits]`` capped by it).
         q_rest: (n,) rest pose [rad].
-        frame_ids: target name -> Pinocchio frame id.
+        frame_ids: target name -> Pinocchio frame id (the target's position; its orientation too, unless
+            ``rotation_ids`` has it).
+        rotation_ids: target name -> Pinocchio frame id of its orientation, for the targets whose profile
+            ``[orientation_frames]`` names another frame than ``[frames]`` (the G1's wrists).
     """
 
     profile: RobotProfile
@@ -37,6 +40,7 @@ class RobotModel:
     amax: np.ndarray
     q_rest: np.ndarray
     frame_ids: dict[str, int]
+    rotation_ids: dict[str, int] = field(default_factory=dict)
 
     @property
     def nq(self) -> int:
@@ -61,13 +65,19 @@ class RobotModel:
         pin.framesForwardKinematics(self.model, data, np.asarray(q, dtype=float))
         return data
 
+    def rotation_id(self, target: str) -> int:
+        """Pinocchio frame id of a target's orientation (``frame_id`` unless the profile names another frame)."""
+        fid = self.rotation_ids.get(target)
+        return self.frame_id(target) if fid is None else fid
+
     def frame_poses(self, q: np.ndarray, names=TARGET_NAMES) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Poses of frames in the base frame: name -> (p (3,) [m], R (3, 3))."""
+        """Poses of targets (or raw frames) in the base frame: name -> (p (3,) [m], R (3, 3)); a target's R is
+        that of its orientation frame (``rotation_ids``)."""
         data = self.forward(q)
         out = {}
         for n in names:
-            oMf = data.oMf[self.frame_id(n)]
-            out[n] = (oMf.translation.copy(), oMf.rotation.copy())
+            p = data.oMf[self.frame_id(n)].translation
+            out[n] = (p.copy(), data.oMf[self.rotation_id(n)].rotation.copy())
         return out
 
     def clip(self, q: np.ndarray) -> np.ndarray:
@@ -113,4 +123,12 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
         if not reduced.existFrame(frame):
             raise KeyError(f"profile {prof.name}: frame {frame!r} for {target} not in URDF")
         frame_ids[target] = reduced.getFrameId(frame)
-    return RobotModel(prof, reduced, reduced.createData(), names, lower, upper, vmax, amax, q_rest, frame_ids)
+    rotation_ids = {}
+    for target, frame in prof.orientation_frames.items():
+        if not reduced.existFrame(frame):
+            raise KeyError(f"profile {prof.name}: orientation frame {frame!r} for {target} not in URDF")
+        if frame != prof.frames[target]:
+            rotation_ids[target] = reduced.getFrameId(frame)
+    return RobotModel(
+        prof, reduced, reduced.createData(), names, lower, upper, vmax, amax, q_rest, frame_ids, rotation_ids
+    )

@@ -74,7 +74,13 @@ class RobotProfile:
         base_frame: frame all targets are expressed in.
         waist: waist joints in solver order (may be empty: an arms-only robot).
         arms: side (``left``/``right``) -> the arm's joint roles.
-        frames: target name (``left_wrist``, ...; at least every ``TARGET_NAMES``) -> robot frame.
+        frames: target name (``left_wrist``, ...; at least every ``TARGET_NAMES``) -> robot frame: its
+            origin is the target's position, and its orientation the target's unless ``orientation_frames``
+            names another frame.
+        orientation_frames: target name -> the robot frame whose orientation is the target's (the profile's
+            ``[orientation_frames]``, optional; a target without an entry takes both from ``frames``). Why a
+            second frame: a robot wrist whose axes do not meet has no point that all three wrist joints leave in
+            place and that turns with the hand (the G1's yaw axis sits 4.6 cm past its pitch axis).
         human: target name -> canonical human bone.
         rest: joint name -> rest angle [rad] (unlisted joints rest at 0).
         max_joint_velocity: cap on every joint speed [rad/s].
@@ -113,6 +119,12 @@ class RobotProfile:
     motor_acceleration_limits: bool = False
     source: Path | None = None
     collision: CollisionSpec | None = None
+    orientation_frames: dict[str, str] = field(default_factory=dict)
+
+    def orientation_frame(self, target: str) -> str:
+        """Robot frame whose orientation is ``target``'s: its ``[orientation_frames]`` entry, else its ``[frames]``
+        one."""
+        return self.orientation_frames.get(target, self.frames[target])
 
     def controlled_joints(self, with_waist: bool = True) -> tuple[str, ...]:
         """Controlled joints in solver order: waist (if asked) then each arm in ``SIDES`` order.
@@ -202,6 +214,7 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> RobotProfile:
             motor_acceleration_limits=_flag(model, "motor_acceleration_limits", "[model]"),
             source=path,
             collision=_collision(raw["collision"], path) if "collision" in raw else None,
+            orientation_frames={str(k): str(v) for k, v in raw.get("orientation_frames", {}).items()},
         )
     except KeyError as exc:
         raise ProfileError(f"{path}: missing field {exc}") from None
@@ -293,6 +306,13 @@ def _validate(prof: RobotProfile, path: Path) -> None:
                 raise ProfileError(f"{path}: [{table}] {joint} must be a positive number, got {v}")
     if prof.motor_acceleration_limits and not prof.joint_accelerations:
         raise ProfileError(f"{path}: [model] motor_acceleration_limits = true needs an [acceleration_limits] table")
+    unknown = sorted(set(prof.orientation_frames) - set(prof.frames))
+    if unknown:
+        raise ProfileError(f"{path}: [orientation_frames] names targets that are not in [frames]: {unknown}")
+    links = set(re.findall(r'<link\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
+    unknown = sorted(f for f in prof.orientation_frames.values() if f not in links)
+    if unknown:
+        raise ProfileError(f"{path}: [orientation_frames] names links that are not in the URDF: {unknown}")
 
 
 def upper_arm_frame(profile: RobotProfile, side: str) -> str:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
+from shared.kinematics.configuration import Configuration
 from shared.robot.mujoco_model import build_mujoco_robot
 from shared.robot.pinocchio_model import build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, ProfileError, load_profile
+from shared.targets import SIDES, wrist_of
 
 
 @pytest.fixture(scope="module")
@@ -58,3 +61,29 @@ def test_second_profile_is_a_file(tmp_path):
 def test_unknown_profile_lists_known():
     with pytest.raises(ProfileError, match=DEFAULT_PROFILE):
         load_profile("no_such_robot")
+
+
+def test_wrist_target_is_the_pitch_axis_and_turns_with_the_hand(models):
+    """The G1's wrist target (``[frames]`` + ``[orientation_frames]``): its position is the wrist pitch axis, which
+    no wrist joint moves, and its orientation the hand's, which each wrist joint turns; Configuration's pose and
+    Jacobian rows are those of each frame, checked against finite differences."""
+    rm, _ = models
+    rng = np.random.default_rng(3)
+    for q in rm.random_configurations(5, rng):
+        conf = Configuration(rm, q)
+        for side in SIDES:
+            w = wrist_of(side)
+            p, R = (x.copy() for x in conf.get_frame_pose(w))
+            J = conf.get_frame_jacobian(w).copy()
+            hand = rm.model.getFrameId(rm.profile.orientation_frame(w))
+            assert np.allclose(R, rm.forward(q).oMf[hand].rotation)
+            for j in rm.indices(rm.profile.arms[side].wrist):
+                q2 = q.copy()
+                q2[j] += 0.3
+                p2, R2 = rm.frame_poses(q2, names=(w,))[w]
+                assert np.linalg.norm(p2 - p) < 1e-9  # the wrist point stays
+                assert np.linalg.norm(pin.log3(R2 @ R.T)) == pytest.approx(0.3)  # the hand turns
+            dq = 1e-6 * rng.normal(size=rm.nq)
+            p3, R3 = Configuration(rm, q + dq).get_frame_pose(w)
+            np.testing.assert_allclose(J[:3] @ dq, p3 - p, atol=1e-10)
+            np.testing.assert_allclose(J[3:] @ dq, pin.log3(R3 @ R.T), atol=1e-10)

@@ -115,6 +115,14 @@ def test_amax_beside_vmax():
             lambda t: t.replace("[velocity_limits]\n", '[velocity_limits]\nleft_elbow_joint = "slow"\n'),
             r"\[velocity_limits\] left_elbow_joint must be a number",
         ),
+        (
+            lambda t: t.replace("[orientation_frames]\n", '[orientation_frames]\nleft_hand = "left_wrist_yaw_link"\n'),
+            r"\[orientation_frames\] names targets that are not in \[frames\]: \['left_hand'\]",
+        ),
+        (
+            lambda t: t.replace("[orientation_frames]\n", '[orientation_frames]\nleft_elbow = "left_elbow_lnk"\n'),
+            r"\[orientation_frames\] names links that are not in the URDF: \['left_elbow_lnk'\]",
+        ),
     ],
 )
 def test_bad_profiles_are_refused_with_the_field(tmp_path, edit, message):

@@ -32,7 +32,7 @@ def pinocchio_ik(model, data, fid, oMdes, q0, iters=300, damp=1e-12, dt=0.5, eps
 def arm():
     robot = build_robot_model(with_waist=False)
     joints = robot.profile.arms["right"].joints
-    frame = robot.profile.frames["right_wrist"]
+    frame = robot.profile.orientation_frame("right_wrist")  # the hand link, a rigid frame at the chain's end
     S, M = arm_screws(robot.model, joints, frame, robot.profile.base_frame)
     idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in joints]
     return robot, S, M, idx, robot.model.getFrameId(frame)

@@ -46,7 +46,8 @@ def g1():
     chains = {}
     for side in SIDES:
         joints = robot.profile.arms[side].joints
-        frame = robot.profile.frames[wrist_of(side)]
+        # the hand link, the rigid frame at the chain's end (the wrist target's position is the pitch axis before it)
+        frame = robot.profile.orientation_frame(wrist_of(side))
         S, M = arm_screws(robot.model, tuple(joints), frame, robot.profile.base_frame)
         idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in joints]
         chains[side] = (S, M, idx, frame)
@@ -99,22 +100,22 @@ def test_g1_arm_fk_and_jacobians_match_pinocchio(g1, side):
 
 def test_g1_arm_fk_and_jacobian_match_mujoco(g1):
     robot, chains = g1
-    S, M, idx, _ = chains["right"]
+    S, M, idx, frame = chains["right"]
     mj = build_mujoco_robot(robot.profile, joint_names=robot.joint_names)
     m, d = mj.model, mj.data
-    bid = mj.body_ids["right_wrist"]
+    bid = m.body(frame).id
     base = mj.body_ids["__base__"]
     rng = np.random.default_rng(3)
     jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
     for q in robot.random_configurations(N_CONFIGS, rng):
         mj.set_q(q)
         mujoco.mj_comPos(m, d)
-        p, R = mj.frame_pose("right_wrist")
+        Rb = d.xmat[base].reshape(3, 3)
+        p, R = Rb.T @ (d.xpos[bid] - d.xpos[base]), Rb.T @ d.xmat[bid].reshape(3, 3)
         T = fk_space(M, S, q[idx])
         assert np.abs(T[:3, 3] - p).max() < TOL
         assert np.abs(T[:3, :3] - R).max() < TOL
         mujoco.mj_jacBody(m, d, jacp, jacr, bid)
-        Rb = d.xmat[base].reshape(3, 3)
         dofs = mj.dof_idx[idx]
         J_mj = np.vstack([Rb.T @ jacr[:, dofs], Rb.T @ jacp[:, dofs]])
         assert np.abs(mixed_from_space(jacobian_space(S, q[idx]), p) - J_mj).max() < TOL

@@ -21,11 +21,12 @@ def frame():
     return SwivelFrame.for_arm(C, LU, LF, "left")
 
 
-def random_wrists(rng, n, centre=C):
-    """n wrists (n, 3) [m] within reach (|LU - LF| + 2 cm to LU + LF - 1 cm from the shoulder centre)."""
+def random_wrists(rng, n, centre=C, lu=LU, lf=LF):
+    """n wrists (n, 3) [m] within reach of an arm of lengths lu, lf [m] (|lu - lf| + 2 cm to lu + lf - 1 cm from the
+    shoulder centre)."""
     u = rng.normal(size=(n, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return centre + u * rng.uniform(abs(LU - LF) + 0.02, LU + LF - 0.01, (n, 1))
+    return centre + u * rng.uniform(abs(lu - lf) + 0.02, lu + lf - 0.01, (n, 1))
 
 
 def circle_elbow(p, v):
@@ -104,7 +105,8 @@ def test_swivel_policy_gives_elbows_that_reach_its_wrists(tmp_path, robot14):
         S = np.zeros((2, 14))
         S[:, 0] = 1.0
         for i in range(2):
-            S[i, 4:7] = random_wrists(rng, 1, pol.swivel[i].centre)[0]
+            f = pol.swivel[i]
+            S[i, 4:7] = random_wrists(rng, 1, f.centre, f.upper, f.fore)[0]  # the robot arm's own reach
         out, ref = pol.act(S), pol.act_reference(S)
         for i, s in enumerate(SIDES):
             f = pol.swivel[i]

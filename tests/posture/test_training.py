@@ -159,8 +159,9 @@ def test_elbow_kind_labels_are_the_operators_elbow_and_driving_them_brings_the_e
         gap = np.abs(drive.A[ok[:, i], i][:, None, :] - clip.elbow[i][None, :]).max(-1).min(1)
         assert ok[:, i].sum() > 50 and gap.max() == 0.0  # every label is one of the clip's reference elbows
     # Driving the label (a damped least-squares pull of the shoulder joints) brings the elbow toward the
-    # operator's: measured 3.4 cm against 6.5 cm for the same rollout without it.
-    assert np.nanmean(drive.elbow_err) < 0.6 * np.nanmean(idle.elbow_err)
+    # operator's: measured 1.31 cm against 1.81 cm for the same rollout without it (3.4 against 6.5 cm while the
+    # wrist point was the hand link, 4.6 cm past the wrist pitch axis: every hand pitch then moved the elbow).
+    assert np.nanmean(drive.elbow_err) < 0.8 * np.nanmean(idle.elbow_err)
     assert np.nanmean(drive.wrist_err) < np.nanmean(idle.wrist_err) + 0.005  # the end-effector task still rules
     data = from_rollouts([drive])
     mirrored = data.with_mirror(arms.mirror, "elbow")
@@ -184,9 +185,14 @@ def test_swivel_kind_labels_place_the_operators_elbow_and_drive_it_as_the_elbow_
         frame_angles = np.array([f.angle(e, p) for e, p in zip(clip.elbow[i], clip.p[i])])
         assert np.abs(A[:, None, :] - frame_angles[None]).max(-1).min(1).max() == 0.0
         placed = np.array([f.place(a, p) for a, p in zip(frame_angles, clip.p[i])])
-        np.testing.assert_allclose(placed[clip.elbow_ok[i]], clip.elbow[i][clip.elbow_ok[i]], atol=1e-9)
+        # (the elbows the bounded mapping kept inside its workspace box are off their circle: the raised hands of
+        # frames 41-50 on the left, up to 2.6 mm)
+        on_circle = clip.elbow_ok[i] & (np.abs(np.linalg.norm(clip.elbow[i] - f.centre, axis=1) - f.upper) < 1e-9)
+        assert on_circle.sum() > 0.75 * clip.elbow_ok[i].sum()
+        np.testing.assert_allclose(placed[on_circle], clip.elbow[i][on_circle], atol=1e-9)
     # the elbow kind's pull, toward the angle placed on the interpolated wrist target's circle (the elbow kind's
-    # point is the clip frame's elbow): measured 3.22 cm of elbow error against 3.39
+    # point is the clip frame's elbow): measured 1.20 cm of elbow error against 1.31 (3.22 against 3.39 with the wrist
+    # point on the hand link, before session 15)
     assert np.nanmean(sw.elbow_err) < np.nanmean(el.elbow_err)
     data = from_rollouts([sw])
     assert data.A[0].shape[1] == 2

@@ -24,10 +24,12 @@ ERR_TOL = 1e-4
 
 
 def _arms_only(text: str) -> str:
-    """No waist (14 DoF) and wrist targets on the hand links instead of the wrist yaw links."""
+    """No waist (14 DoF) and wrist targets on the hand links (position and orientation: no
+    ``[orientation_frames]``) instead of the G1's wrist pitch axis and hand."""
     text = re.sub(r"^waist = \[.*\]$", "waist = []", text, count=1, flags=re.M)
+    text = text.replace("[orientation_frames]", "[unused_orientation_frames]")
     for side in SIDES:
-        text = text.replace(f'{side}_wrist = "{side}_wrist_yaw_link"', f'{side}_wrist = "{side}_rubber_hand"')
+        text = text.replace(f'{side}_wrist = "{side}_wrist_pitch_link"', f'{side}_wrist = "{side}_rubber_hand"')
     return text
 
 
@@ -44,10 +46,10 @@ def test_arms_only_robot_runs_the_retarget_path_unchanged(arms_only, tmp_path, m
     monkeypatch.setenv("MIMIC_CACHE_DIR", str(tmp_path))
     rm = build_robot_model(arms_only)
     assert rm.nq == 14 and not arms_only.waist
-    assert rm.model.frames[rm.frame_id("left_wrist")].name == "left_rubber_hand"
+    assert rm.model.frames[rm.frame_id("left_wrist")].name == "left_rubber_hand" and not rm.rotation_ids
     g1 = build_robot_model(load_profile(), with_waist=False)
     rest, rest_g1 = rm.frame_poses(rm.q_rest), g1.frame_poses(g1.q_rest)
-    # the hand frame sits beyond the wrist yaw link: the profile's frame choice took effect
+    # the hand frame sits beyond the wrist pitch axis: the profile's frame choice took effect
     for w in WRISTS:
         assert np.linalg.norm(rest[w][0] - rest_g1[w][0]) > 0.01
 

@@ -17,3 +17,21 @@ def g1_with_motor_acceleration_limits(folder: Path) -> str:
     path = Path(folder) / "g1_motor_accel.toml"
     path.write_text(text.replace('name = "g1_29dof"', 'name = "g1_motor_accel"'))
     return str(path)
+
+
+def g1_with_the_hand_as_wrist_point(folder: Path) -> str:
+    """The G1 profile as it was before session 15: the wrist targets' position *and* orientation on the hand link
+    (the wrist yaw link, 4.6 cm past the pitch axis the shipped profile puts the position on). The lock-up
+    scenarios of the recovery tests were recorded with it; the shipped G1 does not run into them. Returns the
+    path."""
+    prof = load_profile()
+    text = prof.source.read_text()
+    for side in ("left", "right"):
+        wrist = f"{side}_wrist"
+        old = f'{wrist} = "{prof.frames[wrist]}"'
+        assert text.count(old) == 1 and prof.orientation_frame(wrist) != prof.frames[wrist], "the G1 wrist frames moved"
+        text = text.replace(old, f'{wrist} = "{prof.orientation_frame(wrist)}"')
+    text = text.replace("[orientation_frames]", "[unused_orientation_frames]")
+    path = Path(folder) / "g1_hand_wrist_point.toml"
+    path.write_text(text.replace('name = "g1_29dof"', 'name = "g1_hand_wrist_point"'))
+    return str(path)
