@@ -102,11 +102,9 @@ class MinkPeer:
         # A wrist whose orientation frame is another link (``[orientation_frames]``: the G1's hand, past its wrist
         # point) gets two tasks, as in our solvers: the position on one frame, the orientation on the other.
         self.rotation_tasks = {
-            name: mink.FrameTask(
-                prof.orientation_frame(name), "body", position_cost=0.0, orientation_cost=cfg.wrist_orientation_cost
-            )
-            for name in WRISTS
-            if prof.orientation_frame(name) != prof.frames[name]
+            name: mink.FrameTask(frame, "body", position_cost=0.0, orientation_cost=cfg.wrist_orientation_cost)
+            for name, frame in prof.split_orientation_frames.items()
+            if name in WRISTS
         }
         self.tasks = {
             name: mink.FrameTask(

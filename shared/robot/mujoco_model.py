@@ -153,7 +153,7 @@ def build_mujoco_robot(
     act_idx = np.array([model.actuator(n).id for n in names])
     body_ids = {t: model.body(f).id for t, f in prof.frames.items()}
     body_ids["__base__"] = model.body(prof.base_frame).id
-    rotation_body_ids = {t: model.body(f).id for t, f in prof.orientation_frames.items() if f != prof.frames[t]}
+    rotation_body_ids = {t: model.body(f).id for t, f in prof.split_orientation_frames.items()}
     # Every joint (legs too) starts, and is held, at the rest pose.
     for j in range(model.njnt):
         name = model.joint(j).name

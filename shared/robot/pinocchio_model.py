@@ -124,11 +124,10 @@ def build_robot_model(profile: RobotProfile | str | None = None, with_waist: boo
             raise KeyError(f"profile {prof.name}: frame {frame!r} for {target} not in URDF")
         frame_ids[target] = reduced.getFrameId(frame)
     rotation_ids = {}
-    for target, frame in prof.orientation_frames.items():
+    for target, frame in prof.split_orientation_frames.items():
         if not reduced.existFrame(frame):
             raise KeyError(f"profile {prof.name}: orientation frame {frame!r} for {target} not in URDF")
-        if frame != prof.frames[target]:
-            rotation_ids[target] = reduced.getFrameId(frame)
+        rotation_ids[target] = reduced.getFrameId(frame)
     return RobotModel(
         prof, reduced, reduced.createData(), names, lower, upper, vmax, amax, q_rest, frame_ids, rotation_ids
     )

@@ -126,6 +126,11 @@ class RobotProfile:
         one."""
         return self.orientation_frames.get(target, self.frames[target])
 
+    @property
+    def split_orientation_frames(self) -> dict[str, str]:
+        """Target -> orientation frame, for the targets whose orientation frame is not their ``[frames]`` one."""
+        return {t: f for t, f in self.orientation_frames.items() if f != self.frames[t]}
+
     def controlled_joints(self, with_waist: bool = True) -> tuple[str, ...]:
         """Controlled joints in solver order: waist (if asked) then each arm in ``SIDES`` order.
 
@@ -293,7 +298,8 @@ def _validate(prof: RobotProfile, path: Path) -> None:
         raise ProfileError(f"{path}: [arms_out] names joints that are not controlled: {unknown}")
     # Entries for joints the profile does not control are allowed (a variant that drops the waist keeps
     # the table), but each must be a joint of the URDF: a typo must not silently leave a joint uncapped.
-    urdf_joints = set(re.findall(r'<joint\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
+    urdf = prof.urdf_path.read_text()
+    urdf_joints = set(re.findall(r'<joint\s[^>]*?name="([^"]+)"', urdf))
     for table, limits in (
         ("acceleration_limits", prof.joint_accelerations),
         ("velocity_limits", prof.joint_velocities),
@@ -309,7 +315,7 @@ def _validate(prof: RobotProfile, path: Path) -> None:
     unknown = sorted(set(prof.orientation_frames) - set(prof.frames))
     if unknown:
         raise ProfileError(f"{path}: [orientation_frames] names targets that are not in [frames]: {unknown}")
-    links = set(re.findall(r'<link\s[^>]*?name="([^"]+)"', prof.urdf_path.read_text()))
+    links = set(re.findall(r'<link\s[^>]*?name="([^"]+)"', urdf))
     unknown = sorted(f for f in prof.orientation_frames.values() if f not in links)
     if unknown:
         raise ProfileError(f"{path}: [orientation_frames] names links that are not in the URDF: {unknown}")
