@@ -156,7 +156,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--paper",
         action="store_true",
         help="the paper's setup: paper mapping (eqs. 1-3), orientation level 1, mapped elbows with their "
-        "orientations (the elbow pose) on level 2, eq. 4 against the rest pose, no trunk push",
+        "orientations (the elbow pose) on level 2, eq. 4 against the rest pose, no trunk push, strict on every "
+        "tick (no saturation trade)",
     )
     p.add_argument(
         "--wrist-only",
@@ -173,7 +174,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="strict HQPs: trade a saturated wrist level against the lower levels at this weight (SolverConfig."
-        "saturation_weight; default: SolverConfig's, 0 = off)",
+        "saturation_weight; default: SolverConfig's, 4; 0 = strict on every tick, as with --paper)",
     )
     p.add_argument(
         "--waist-follow-cost",
@@ -340,8 +341,8 @@ def _compare_summary(clips: list[dict]) -> dict:
 def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, ...] | None, dict]:
     """(algorithms, SolverConfig fields, wqp weights or None, RetargetConfig fields) from the flags;
     ``--paper`` sets the paper's mapping, orientation level 1, mapped elbows with their orientations on
-    level 2 (the elbow pose), eq. 4 against the rest pose and no trunk push. The retargeter otherwise runs with the
-    service's own settings (``RetargetConfig``)."""
+    level 2 (the elbow pose), eq. 4 against the rest pose, no trunk push and no saturation trade. The retargeter
+    otherwise runs with the service's own settings (``RetargetConfig``)."""
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
     unknown = [a for a in algos if a not in ALGORITHMS and a not in PEERS]
     if unknown:
@@ -364,6 +365,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
     saturation = getattr(args, "saturation_weight", None)
+    if saturation is None and paper:
+        saturation = 0.0  # the paper's hierarchy is strict on every tick, a saturated one too
     if saturation is not None:
         solver["saturation_weight"] = saturation
     follow = getattr(args, "waist_follow_cost", None)

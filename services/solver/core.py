@@ -181,9 +181,10 @@ class SolverConfig:
             stop: ``recovery.RecoveryConfig``) through a position-level IK posture, in the wrists' null space
             (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
             no level to put it on; not on wrist-only ticks (their elbow targets, a policy's too, are
-            predictions). On by default: a guard for motion we have not seen. With the shipped settings it never
-            fires on the 25 clips (every figure the same); with ``saturation_weight`` 2 it takes kick_normal out of
-            its elbow-hyperextension lock (elbow mean 5.4 -> 2.7 cm).
+            predictions). On by default: a guard for motion we have not seen. With the shipped settings (the
+            saturation trade at weight 4, tolerance 0.1 included) it never fires on the 25 clips (every figure the
+            same); with ``saturation_weight`` 2, tolerance 0.6 it took kick_normal out of its elbow-hyperextension
+            lock (elbow mean 5.4 -> 2.7 cm).
         range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
             stops on level 2, beside the elbows (``centring.RangeCentringTask``), strict hierarchies only
             (hqp-nullspace, hqp-original); 0 = off. It removes the wave-left-hand lock-up (elbow mean /
@@ -210,29 +211,34 @@ class SolverConfig:
             exactly as before (with 0.2 on the shipped G1 the gesture wrists lost 13 %: 0.090 -> 0.102 cm).
             With the motor limits, 16 gesture clips (``mimic eval --no-sim``, task_acceleration 30): elbow
             mean 10.6 -> 3.5 cm, wrist 1.26 -> 1.29 cm against slow joints alone (h12a notes).
-        saturation_weight: strict hierarchies only, 0 = off (default): on a tick where the wrist level cannot be met
-            within the box (and no level-1 reserve is on), the wrists and the lower levels are traded in one
-            weighted QP, the wrist rows weighted this much against 1, and the strict hierarchy then meets the
-            wrist velocity of that trade exactly (``saturation.SaturatedWristTrade``; ``SolverCore._solve``).
-            Ticks the wrists can meet stay strict. 25 clips (``mimic eval --no-sim``, h12v notes) at 2: the HQP
-            elbow at or below the WQP's on 18 clips instead of 13 and mink's on 12 instead of 8 (run_happy 11.2 ->
-            3.4 cm, dash_active 10.6 -> 4.0, dash_proud 8.4 -> 3.0), but the vigorous wrists 0.7-2.7 -> 1.8-5.1 cm
-            (still below mink's), kick_normal's elbow 3.7 -> 5.4 cm, gesture wrists worse where they saturate
-            (byebye_normal 0.10 -> 0.19 cm) and stuck_s above 0.1 s on 7 clips instead of 4: off until the
-            gestures keep their figures (``services/solver/README.md``).
-        saturation_trigger: which unmet wrist ticks are traded (``saturation_weight`` > 0). ``"feedforward"``
-            (default): only those whose target velocity itself is beyond what the joints' speed limits give the
-            wrists at this posture (the operator moves faster than the arm can: runs, dashes, kicks);
-            ``"residual"``: every tick the strict wrist level misses. Why: with ``"residual"`` the trade also fired
-            on ticks the wrists miss only for want of acceleration or to close an error (the start-up move from
-            rest, the step a new frame brings), and those trades left a gesture's elbows on another posture
-            (raise-up-right-hand elbow 0.04 -> 0.36 cm with target acceleration on, 125 of its 240 trades in the
-            start-up move); with ``"feedforward"`` one gesture clip of 16 is traded at all (guide_active's flick),
-            against 8 made worse by ``"residual"`` (25 clips, ``mimic eval --no-sim``, solver README).
-            ``SolverCore._feedforward_met``.
-        saturation_tolerance: the traded wrist residual is at most ``1 +`` this times the strict optimum's (the
-            wrist weight is raised until it is): the wrists keep moving towards a target they can reach. Without
-            the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4 s.
+        saturation_weight: strict hierarchies only (0 = off): on a tick where the wrist level cannot be met within
+            the box (and no level-1 reserve is on), the wrists and the lower levels are traded in one weighted QP, the
+            wrist rows weighted this much against 1, and the strict hierarchy then meets the wrist velocity of that
+            trade exactly (``saturation.SaturatedWristTrade``; ``SolverCore._solve``). Ticks the wrists can meet stay
+            strict, bit for bit. Default 4 (session 16), with ``saturation_tolerance`` 0.05 and the ``"residual"``
+            trigger: 25 clips (``mimic eval <23 BVH> <2 C3D> --algos hqp-nullspace --no-sim``), against 0 (strict):
+            HQP elbow mean 0.981 -> 0.859 cm over the clips (dash_proud 4.89 -> 3.56, dash_active 5.92 -> 4.69,
+            kick_normal 1.22 -> 1.04, run_happy 4.98 -> 4.76, byebye_normal 0.63 -> 0.55) and the wrists *better*,
+            0.159 -> 0.155 cm (byebye_normal 0.077 -> 0.062): a capped give on a saturated tick leaves a posture
+            from which the next ticks' wrists are met. One clip worse: raise-up-right-hand's elbow 0.04 -> 0.10 cm
+            (the idle arm 1.6 cm off for 0.15 s of the start-up move). Tolerance 0.1: 0.160 / 0.818, but
+            byebye_normal's wrist 0.096; 0.03: 0.154 / 0.881. Only the feedforward trigger (session 15's default,
+            weight 2): 0.160 / 0.931 (only dash_active traded). ``mimic eval --paper`` runs 0 (the paper's strict
+            hierarchy); ``mimic solve --saturation-weight 0`` gives it to a user.
+        saturation_trigger: which unmet wrist ticks are traded (``saturation_weight`` > 0). ``"residual"`` (default):
+            every tick the strict wrist level misses; ``"feedforward"``: only those whose target velocity itself is
+            beyond what the joints' speed limits give the wrists at this posture (the operator moves faster than the
+            arm can: runs, dashes, kicks; ``SolverCore._feedforward_met``). Session 11 chose "feedforward" at weight
+            2, tolerance 0.6, where the residual trigger also traded the start-up move from rest and left gestures'
+            elbows on another posture (raise-up-right-hand 0.04 -> 0.36 cm, 8 gestures worse); at tolerance 0.05
+            and weight 4 the residual trigger costs that clip 0.06 cm and no other, while the feedforward trigger
+            now trades only dash_active (the wrist point on the pitch axis leaves the wrist joints out of the
+            speed budget).
+        saturation_tolerance: the traded wrist residual is at most ``1 +`` this times the strict optimum's (the aim
+            moves back towards the strict optimum's until it is): the wrists keep moving towards a target they can
+            reach. Without the cap the trade held kick_normal's right wrist 6-12 cm off a reachable target for 5.4
+            s; with a loose one the gestures lose their wrists (weight 2: byebye_normal 0.077 -> 0.116 cm at 0.1,
+            most gestures at 0.6, the value until session 16).
         self_collision: keep the profile's ``[collision]`` pairs apart with velocity dampers, hard at every level
             (``collision.SelfCollisionAvoidance``: polytope proxies of the meshes, one ``mj_collision`` call when
             the links could have closed a 3 cm pad since the last one, rows only for pairs within d_i that the
@@ -292,9 +298,9 @@ class SolverConfig:
     range_centring_gain: float = 20.0
     slow_joint_acceleration: float = 40.0
     level1_reserve: float | None = None
-    saturation_weight: float = 0.0
-    saturation_tolerance: float = 0.6
-    saturation_trigger: str = "feedforward"
+    saturation_weight: float = 4.0
+    saturation_tolerance: float = 0.05
+    saturation_trigger: str = "residual"
     posture_policy: str | None = None
     wrist_only_posture_gain: float = 2.0
     posture_blend_time: float = 0.3
@@ -825,7 +831,7 @@ class SolverCore:
                 return sol
             if self.config.saturation_trigger == "feedforward" and self._feedforward_met(As, levels):
                 return sol
-            aim = self.saturation.wrist_velocity(LevelProblem(As, bs, lb, ub, ineq), sol.residuals[0])
+            aim = self.saturation.wrist_velocity(LevelProblem(As, bs, lb, ub, ineq), sol.qd)
             if aim is None:
                 return sol
             traded = self._solve_reaimed(As, bs, aim, lb, ub, ineq, levels)

@@ -109,7 +109,13 @@ def test_wave_right_hand_elbows_with_motor_limits(motor_robot):
     err = {}
     for name, solver in {
         "shipped": {},
-        "waist_in_tasks": {"slow_joint_acceleration": 0.0, "level1_reserve": 0.0, "task_acceleration": 30.0},
+        # the solver of the time: no slow joints, no reserve, strict on every tick (no saturation trade either)
+        "waist_in_tasks": {
+            "slow_joint_acceleration": 0.0,
+            "level1_reserve": 0.0,
+            "task_acceleration": 30.0,
+            "saturation_weight": 0.0,
+        },
     }.items():
         tr = run_algorithm(motor_robot, targets, "hqp-nullspace", qp="daqp", solver=solver, collisions=False)
         el = np.concatenate([np.linalg.norm(tr.ref_p[e] - tr.kin_p[e], axis=1) for e in ("left_elbow", "right_elbow")])
