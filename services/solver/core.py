@@ -182,7 +182,7 @@ class SolverConfig:
             (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
             no level to put it on; not on wrist-only ticks (their elbow targets, a policy's too, are
             predictions). On by default: a guard for motion we have not seen. With the shipped settings (the
-            saturation trade at weight 4, tolerance 0.1 included) it never fires on the 25 clips (every figure the
+            saturation trade at weight 4, tolerance 0.05 included) it never fires on the 25 clips (every figure the
             same); with ``saturation_weight`` 2, tolerance 0.6 it took kick_normal out of its elbow-hyperextension
             lock (elbow mean 5.4 -> 2.7 cm).
         range_centring_cost: weight [1/rad] at a stop of the waist and shoulder joints' pull out of their
