@@ -8,9 +8,13 @@ velocities must satisfy the damper (Faverjon & Tournassoud; Kanoun et al.)
 
 with ``n`` the unit vector along which ``d`` grows, ``J(p)`` (3, n) the Jacobian of the witness
 point on its link and ``d_s`` the safety distance: a pair may approach at ``xi`` [m/s] at ``d_i``
-and not at all at ``d_s``; closer than ``d_s`` it must separate. The rows go to the solver as
-``G qd <= h``, hard at every priority level (``inequalities.Inequalities``); rows that no velocity
-of the step's box can break are dropped, so the QP keeps its box-only path on most ticks.
+and not at all at ``d_s``; closer than ``d_s`` it must separate. Farther than the braking distance
+``d_b`` the bound is the larger of that and ``sqrt(2 a (d - d_b))``, the speed the pair could still
+brake from at deceleration ``a`` before ``d_b`` (``approach_bound``): a hand may come to the belly
+at the operator's pace and brake late, where the linear damper alone slows it from ``d_i`` on.
+The rows go to the solver as ``G qd <= h``, hard at every priority level
+(``inequalities.Inequalities``); rows that no velocity of the step's box can break are dropped, so
+the QP keeps its box-only path on most ticks.
 
 Geometry: a proxy fitted once at start-up to each link's collision mesh (its convex hull, as
 MuJoCo collides it): a polytope of 228 faces (the hull's 6 principal directions, 3 rings of 24
@@ -224,6 +228,8 @@ class SelfCollisionAvoidance:
         self.d_s = spec.safety_distance
         self.d_i = spec.influence_distance
         self.xi = spec.damper_speed
+        self.d_b = spec.braking_distance
+        self.decel = spec.braking_deceleration
         self._build_proxy_model(mjspec, self.d_i + REFRESH_PAD)
         #: (L,) body ids of ``self.links`` in the proxy model
         self.link_body = np.array([self.model.body(n).id for n in self.links])
@@ -361,8 +367,7 @@ class SelfCollisionAvoidance:
             self.close = []
             return Inequalities(np.empty((0, self.dof_idx.shape[0])), np.empty(0))
         G = G_ref[within]
-        h = (self.xi / (self.d_i - self.d_s)) * (dist[within] - self.d_s)
-        ineq = Inequalities(G, h)
+        ineq = Inequalities(G, self.approach_bound(dist[within]))
         keep = within
         if lb is not None and ub is not None:
             ineq.reachable_within(lb, ub)
@@ -373,6 +378,18 @@ class SelfCollisionAvoidance:
         bodies, normal, p1, p2 = self._ref_pairs
         self.close = [PairDistance(*bodies[i], float(dist[i]), p1[i], p2[i], normal[i]) for i in keep]
         return ineq
+
+    def approach_bound(self, dist: np.ndarray) -> np.ndarray:
+        """The dampers' bound h (k,) [m/s] on each pair's approach speed at its distance ``dist`` (k,) [m]: the
+        linear damper ``xi (d - d_s) / (d_i - d_s)`` (negative closer than d_s: the pair must separate), or,
+        farther than the braking distance d_b, the speed it could still brake from at deceleration a before d_b,
+        ``sqrt(2 a (d - d_b))``, when that is more."""
+        linear = (self.xi / (self.d_i - self.d_s)) * (dist - self.d_s)
+        if self.decel <= 0.0:
+            return linear
+        braking = np.sqrt(2.0 * self.decel * np.maximum(dist - self.d_b, 0.0))
+        # only beyond d_b: closer than d_s the linear bound is negative (the pair must separate) and stays so
+        return np.where(dist > self.d_b, np.maximum(linear, braking), linear)
 
     def _travel(self) -> float:
         """[m] how far, at most, two links of a pair have moved towards each other since the last measurement (at

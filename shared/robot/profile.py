@@ -55,6 +55,10 @@ class CollisionSpec:
         safety_distance: d_s [m], the distance a pair never comes closer than.
         influence_distance: d_i [m] (> d_s), below which a pair's approach speed is limited.
         damper_speed: xi [m/s], the approach speed allowed at d_i; it falls linearly to 0 at d_s.
+        braking_distance: d_b [m] (d_s <= d_b < d_i; default d_s), where the braking allowance ends.
+        braking_deceleration: a [m/s^2]: farther than d_b a pair may also approach as fast as it could still
+            brake from, at a, before d_b (``sqrt(2 a (d - d_b))``, when that is more than the linear damper's);
+            0 = the linear damper alone.
     """
 
     groups: dict[str, tuple[str, ...]]
@@ -62,6 +66,8 @@ class CollisionSpec:
     safety_distance: float = 0.015
     influence_distance: float = 0.08
     damper_speed: float = 1.0
+    braking_distance: float = 0.015
+    braking_deceleration: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -261,17 +267,25 @@ def _collision(raw: dict, path: Path) -> CollisionSpec:
         if len(pair) != 2 or any(g not in groups for g in pair):
             raise ProfileError(f"{path}: [collision] pair {pair!r} must name two of the groups {sorted(groups)}")
         pairs.append((str(pair[0]), str(pair[1])))
+    d_s = _number(raw, "safety_distance", "[collision]", CollisionSpec.safety_distance)
     spec = CollisionSpec(
         groups,
         tuple(pairs),
-        _number(raw, "safety_distance", "[collision]", CollisionSpec.safety_distance),
+        d_s,
         _number(raw, "influence_distance", "[collision]", CollisionSpec.influence_distance),
         _number(raw, "damper_speed", "[collision]", CollisionSpec.damper_speed),
+        _number(raw, "braking_distance", "[collision]", d_s),
+        _number(raw, "braking_deceleration", "[collision]", CollisionSpec.braking_deceleration),
     )
     if not 0.0 <= spec.safety_distance < spec.influence_distance or not spec.damper_speed > 0.0:
         raise ProfileError(
             f"{path}: [collision] needs 0 <= safety_distance < influence_distance and damper_speed > 0, got "
             f"{spec.safety_distance}, {spec.influence_distance}, {spec.damper_speed}"
+        )
+    if not spec.safety_distance <= spec.braking_distance < spec.influence_distance or spec.braking_deceleration < 0:
+        raise ProfileError(
+            f"{path}: [collision] needs safety_distance <= braking_distance < influence_distance and "
+            f"braking_deceleration >= 0, got {spec.braking_distance}, {spec.braking_deceleration}"
         )
     return spec
 

@@ -116,6 +116,15 @@ def test_amax_beside_vmax():
             r"\[velocity_limits\] left_elbow_joint must be a number",
         ),
         (
+            lambda t: t.replace("braking_distance = 0.025", "braking_distance = 0.01"),
+            r"\[collision\] needs safety_distance <= braking_distance < influence_distance and braking_deceleration "
+            r">= 0, got 0.01, 20.0",
+        ),
+        (
+            lambda t: t.replace("braking_deceleration = 20.0", "braking_deceleration = -1.0"),
+            r"\[collision\] needs safety_distance <= braking_distance .* got 0.025, -1.0",
+        ),
+        (
             lambda t: t.replace("[orientation_frames]\n", '[orientation_frames]\nleft_hand = "left_wrist_yaw_link"\n'),
             r"\[orientation_frames\] names targets that are not in \[frames\]: \['left_hand'\]",
         ),
