@@ -191,7 +191,11 @@ class SolverConfig:
             max 2.23 / 29.7 -> 0.92 / 3.9 cm); byebye_normal 0.975 / 4.40 -> 0.977 / 4.41, guide_normal
             unchanged (``mimic eval``, h12l notes).
         range_centring_band: fraction of each joint's range, from each stop, where the centring acts
-            (its weight grows quadratically from 0 at the band's edge to the cost at the stop).
+            (its weight grows quadratically from 0 at the band's edge to the cost at the stop). 0.15 since
+            session 17: at 0.25 the band took in the shoulder roll of an arm raised to the side (1.48 of the
+            left roll's 2.25 rad stop), and its pull, beside the elbows on level 2, put the waves on a branch
+            whose elbow stays off (wave-left-hand_normal 0.38 -> 0.17 cm, 25 clips 0.819 -> 0.757, no
+            lock-up; cost 0.3 at 0.15 let wave-right-hand_normal lock: elbow p99 27 cm).
         range_centring_gain: gain [1/s] of the centring's pull back to the band's edge. With 5 (the
             posture gain) byebye_normal's elbow mean rose 0.975 -> 1.10 cm and the wave's stayed
             1.00; 20 keeps byebye at 0.977 and the wave at 0.92.
@@ -294,7 +298,7 @@ class SolverConfig:
     elbow_orientation_cost: float = 0.3
     recovery: bool = True
     range_centring_cost: float = 3.0
-    range_centring_band: float = 0.25
+    range_centring_band: float = 0.15
     range_centring_gain: float = 20.0
     slow_joint_acceleration: float = 40.0
     level1_reserve: float | None = None
