@@ -137,7 +137,8 @@ def test_proxy_distance_never_exceeds_the_mesh_distance(robot, avoidance):
 
 
 def test_rows_are_the_damper(robot, avoidance):
-    # Every pair within d_i gives one row, h = xi (d - d_s)/(d_i - d_s), G = -(its distance gradient).
+    # Every pair within d_i gives one row, h = the dampers' bound at its distance (known answers in the next test),
+    # G = -(its distance gradient).
     rng = np.random.default_rng(6)
     for q in robot.random_configurations(50, rng):
         ineq = avoidance.rows(q)
