@@ -11,7 +11,8 @@ point on its link and ``d_s`` the safety distance: a pair may approach at ``xi``
 and not at all at ``d_s``; closer than ``d_s`` it must separate. Farther than the braking distance
 ``d_b`` the bound is the larger of that and ``sqrt(2 a (d - d_b))``, the speed the pair could still
 brake from at deceleration ``a`` before ``d_b`` (``approach_bound``): a hand may come to the belly
-at the operator's pace and brake late, where the linear damper alone slows it from ``d_i`` on.
+at the operator's pace and brake late, where the linear damper alone slows it from ``d_i`` on
+(off unless the profile sets ``braking_deceleration``: the G1's does not, see the solver README).
 The rows go to the solver as ``G qd <= h``, hard at every priority level
 (``inequalities.Inequalities``); rows that no velocity of the step's box can break are dropped, so
 the QP keeps its box-only path on most ticks.

@@ -194,7 +194,7 @@ class SolverConfig:
             (its weight grows quadratically from 0 at the band's edge to the cost at the stop). 0.15 since
             session 17: at 0.25 the band took in the shoulder roll of an arm raised to the side (1.48 of the
             left roll's 2.25 rad stop), and its pull, beside the elbows on level 2, put the waves on a branch
-            whose elbow stays off (wave-left-hand_normal 0.38 -> 0.17 cm, 25 clips 0.819 -> 0.757, no
+            whose elbow stays off (wave-left-hand_normal 0.40 -> 0.18 cm, 25 clips 0.859 -> 0.797, no
             lock-up; cost 0.3 at 0.15 let wave-right-hand_normal lock: elbow p99 27 cm).
         range_centring_gain: gain [1/s] of the centring's pull back to the band's edge. With 5 (the
             posture gain) byebye_normal's elbow mean rose 0.975 -> 1.10 cm and the wave's stayed

@@ -153,18 +153,19 @@ def test_rows_are_the_damper(robot, avoidance):
 
 
 def test_approach_bound_known_answers(robot, avoidance):
-    # The G1's dampers (d_s 1.5, d_b 2.5, d_i 8 cm, xi 1 m/s, a 20 m/s^2): the linear damper up to d_b and
-    # wherever it allows more, the braking curve sqrt(2 a (d - d_b)) beyond; a = 0 leaves the linear damper alone.
+    # The G1's dampers (d_s 1.5, d_b 2.5, d_i 8 cm, xi 1 m/s) with a = 20 m/s^2 (the profile ships 0): the linear
+    # damper up to d_b and wherever it allows more, the braking curve sqrt(2 a (d - d_b)) beyond; a = 0 (shipped)
+    # leaves the linear damper alone.
     spec = robot.profile.collision
     assert (spec.safety_distance, spec.braking_distance, spec.influence_distance) == (0.015, 0.025, 0.08)
-    assert (spec.damper_speed, spec.braking_deceleration) == (1.0, 20.0)
+    assert (spec.damper_speed, spec.braking_deceleration) == (1.0, 0.0)
     d = np.array([0.010, 0.020, 0.045, 0.075])
+    assert np.allclose(avoidance.approach_bound(d), [-1 / 13, 1 / 13, 6 / 13, 12 / 13])
+    braking = copy.copy(avoidance)
+    braking.decel = 20.0
     # 1 cm: must separate at 5/65 m/s; 2 cm: linear 5/65; 4.5 cm: sqrt(40 * 0.02) = 0.894 > linear 30/65;
     # 7.5 cm: sqrt(40 * 0.05) = 1.414 > linear 60/65
-    assert np.allclose(avoidance.approach_bound(d), [-1 / 13, 1 / 13, np.sqrt(0.8), np.sqrt(2.0)])
-    linear = copy.copy(avoidance)
-    linear.decel = 0.0
-    assert np.allclose(linear.approach_bound(d), [-1 / 13, 1 / 13, 6 / 13, 12 / 13])
+    assert np.allclose(braking.approach_bound(d), [-1 / 13, 1 / 13, np.sqrt(0.8), np.sqrt(2.0)])
 
 
 def test_rows_the_box_cannot_break_are_dropped(robot, avoidance):

@@ -142,15 +142,14 @@ def test_recovery_takes_the_arm_out_of_the_lock_that_follows_the_kicks(robot, ki
     # locks after the kicks: without the recovery its elbow drifts 12 -> 21 cm off between 2.3 and 3.0 s with the
     # wrist met (measured 20.7 cm mean over 2.8-3.0 s). The recovery fires there (2.57 s) and has it at 5.1 cm by
     # then, the wrist as close (0.18 cm). (The shipped saturation trade keeps this arm out of that lock: 9.7 cm over
-    # 2.8-3.0 s, no recovery either way; and so do each of session 17's changes alone, the centring band 0.15 and the
-    # braking dampers: 1.04 / 0.48 cm without the recovery. The lock is what this test needs: the solver of the
-    # time, strict, band 0.25, linear dampers.)
+    # 2.8-3.0 s, no recovery either way; and so does the shipped centring band, 0.15: 1.04 cm without the recovery
+    # (the braking dampers, off by default, alone: 0.48). The lock is what this test needs: the solver of the time,
+    # strict, band 0.25.)
     t0 = kick[0].hdr.stamp
     frames = [f for f in kick if f.hdr.stamp - t0 <= 3.0]
     out = {}
     for recovery in (False, True):
         core = SolverCore(robot, SolverConfig(recovery=recovery, saturation_weight=0.0, range_centring_band=0.25))
-        core.collision.decel = 0.0
         core.reset(robot.q_rest)
         t, el, wr = _right_arm_run(robot, frames, core)
         end = t >= 2.8
