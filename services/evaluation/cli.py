@@ -51,6 +51,9 @@ RETARGET_SWITCHES = {
     **MOVING_OPTIONS,
     "forearm_blend": "fade the forearm alignment of the wrist orientation as an arm straightens instead of switching",
 }
+#: ``--paper``: the wrist orientation rows' cost on level 1 beside the positions, as before session 18 (the shipped
+#: 0.045 is the orientations' weight beside the elbows on level 2, not the paper's full wrist pose).
+PAPER_ORIENTATION_COST = 0.3
 PAPER = {
     "hqp-nullspace": {"wrist_err_cm": {"mean": 0.12, "max": 0.65}, "elbow_err_cm": {"mean": 0.75, "max": 2.10}},
     "wqp": {"wrist_err_cm": {"mean": 0.22, "max": 2.50}, "elbow_err_cm": {"mean": 5.58, "max": 9.53}},
@@ -364,6 +367,8 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
     if paper:
         level, elbows, oref, mapping = 1, "mapped", "rest", "paper"
     solver = {} if level is None else {"wrist_orientation_level": level}
+    if paper:
+        solver["wrist_orientation_cost"] = PAPER_ORIENTATION_COST
     saturation = getattr(args, "saturation_weight", None)
     if saturation is None and paper:
         saturation = 0.0  # the paper's hierarchy is strict on every tick, a saturated one too

@@ -4,7 +4,8 @@ mink is the differential IK that GMR (the retargeter most users pick) is built o
 same targets as our solvers, through the same :class:`~services.solver.targets.TargetTracker` (each
 tick: the newest frame, extrapolated with its velocity to the instant the command is for), at the
 same rate, on the MuJoCo model of the same robot, with the equivalent weighted problem: wrist
-FrameTasks (position cost 1, orientation cost from :class:`SolverConfig`), elbow position-only
+FrameTasks (position cost 1, orientation cost from :class:`SolverConfig`: mink's costs weigh the errors,
+ours the velocity rows, at equal gains the same trade of errors), elbow position-only
 FrameTasks, a posture task towards the rest pose, and mink's ConfigurationLimit (with the profile's
 limit margin) and VelocityLimit (the profile's joint speed cap). Its commands are scored exactly
 like ours.

@@ -37,9 +37,9 @@ from shared.targets import elbow_of, wrist_of
 #: Weight of the wrist position [1/m] against the elbow's 1 [1/m]: a conflict of c metres leaves about
 #: c / WRIST_WEIGHT^2 on the wrist (5 cm -> 5 um), so the published (mapped) wrist stays met.
 WRIST_WEIGHT = 100.0
-#: Weight of the wrist orientation [m/rad] against the elbow's 1 [1/m]: the solver's own level-2
-#: weighing (``SolverConfig.wrist_orientation_cost`` 0.3 [1/rad] beside the elbows' 1 [1/m]), so the
-#: published posture is the one the solver would settle in; one degree of hand costs 5 mm of elbow.
+#: Weight of the wrist orientation [m/rad] against the elbow's 1 [1/m]: the solver's level-2 row cost of
+#: the time (``SolverConfig.wrist_orientation_cost`` 0.3 [1/rad] at orientation gain 30 beside the elbows'
+#: 1 at 200; 0.045 at 200 since session 18); one degree of hand costs 5 mm of elbow.
 #: On the 25 clips (``mimic eval``) 0.1 instead moved the elbows less (0.94 against 1.17 cm mean) and
 #: the hands more (1.8 against 1.1 deg mean); the HQP then tracked the elbows a little better (1.47
 #: against 1.52 cm mean) and the hands worse (wrist rotation p99 on wave-left-hand_normal 20 against

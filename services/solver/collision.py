@@ -18,8 +18,10 @@ The rows go to the solver as ``G qd <= h``, hard at every priority level
 the QP keeps its box-only path on most ticks.
 
 Geometry: a proxy fitted once at start-up to each link's collision mesh (its convex hull, as
-MuJoCo collides it): a polytope of 228 faces (the hull's 6 principal directions, 3 rings of 24
-square to them, 150 spread over the sphere), each touching the hull (:func:`link_proxy`). It holds
+MuJoCo collides it; a cylinder or box geom, such as the G1's shoulder pitch and roll links have, by
+points whose hull holds it, :func:`primitive_points`): a polytope of 228 faces (the hull's 6
+principal directions, 3 rings of 24 square to them, 150 spread over the sphere), each touching the
+hull (:func:`link_proxy`). It holds
 the hull, so a proxy distance is never larger than the mesh distance; with a few hundred vertices
 instead of the meshes' 800-9500 it is cheap to collide. The proxies are geoms of a MuJoCo model of
 the same URDF (legs and visual meshes removed) with the link pairs as explicit contact pairs of
@@ -54,6 +56,8 @@ DEGENERATE = 1e-9
 POLYTOPE_DIRECTIONS = 150
 #: Faces in each ring square to one of the hull's principal axes (15 degrees apart at 24).
 RING_DIRECTIONS = 24
+#: Sides of the polygon standing for a cylinder geom's circular ends (circumscribed: it holds the circle).
+CYLINDER_SEGMENTS = 32
 #: Extra margin [m] of the measured pairs beyond d_i: between two measurements the rows follow the joints to
 #: first order (``SelfCollisionAvoidance.rows``), and a pair farther than d_i + this when measured cannot come
 #: within d_i before the next one.
@@ -99,6 +103,20 @@ def _directions(n: int) -> np.ndarray:
     phi = np.pi * (1 + 5**0.5) * k
     rxy = np.sqrt(1 - z * z)
     return np.stack((rxy * np.cos(phi), rxy * np.sin(phi), z), axis=1)
+
+
+def primitive_points(kind: int, size: np.ndarray) -> np.ndarray | None:
+    """(k, 3) [m] points in a primitive geom's frame whose convex hull holds the geom: a MuJoCo cylinder (size:
+    radius, half height along z) as two circumscribed ``CYLINDER_SEGMENTS``-gons, a box (size: half extents) as
+    its 8 corners; None for any other kind."""
+    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        phi = np.linspace(0.0, 2 * np.pi, CYLINDER_SEGMENTS, endpoint=False)
+        r = size[0] / np.cos(np.pi / CYLINDER_SEGMENTS)
+        ring = np.stack((r * np.cos(phi), r * np.sin(phi)), axis=1)
+        return np.vstack([np.hstack((ring, np.full((len(phi), 1), z))) for z in (-size[1], size[1])])
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * size[:3]
+    return None
 
 
 def link_proxy(vertices: np.ndarray, directions: int = POLYTOPE_DIRECTIONS) -> LinkProxy:
@@ -212,7 +230,7 @@ class SelfCollisionAvoidance:
                 raise ValueError(f"[collision] group {group}: none of {list(names)} has collision geometry")
             groups[group] = kept
         self.links = sorted(links)
-        #: link -> the mesh geoms it stands for (the proxies' reference, ``mesh_distance``)
+        #: link -> the collision geoms it stands for (the proxies' reference, ``mesh_distance``)
         self.link_geoms = {n: links[n] for n in self.links}
         #: link -> its proxies (link frame)
         self.proxies = {n: self._fit(n) for n in self.links}
@@ -263,16 +281,21 @@ class SelfCollisionAvoidance:
         self.min_distance = np.inf
 
     def _fit(self, name: str) -> LinkProxy:
-        """Proxies of a link's collision meshes (their vertices in the link frame, at the rest pose)."""
+        """Proxy of a link's collision geoms: meshes, cylinders and boxes (their vertices, or points holding them,
+        :func:`primitive_points`, in the link frame at the rest pose)."""
         m, d = self.model, self.data
         body = m.body(name).id
         Rb, ob = d.xmat[body].reshape(3, 3), d.xpos[body]
         verts = []
         for g in self.link_geoms[name]:
-            if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH:
-                raise ValueError(f"[collision] link {name}: geom {g} is not a mesh (only meshes are fitted)")
-            mid = m.geom_dataid[g]
-            v = m.mesh_vert[m.mesh_vertadr[mid] : m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
+            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+                mid = m.geom_dataid[g]
+                v = m.mesh_vert[m.mesh_vertadr[mid] : m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
+            elif (v := primitive_points(m.geom_type[g], m.geom_size[g])) is None:
+                raise ValueError(
+                    f"[collision] link {name}: geom {g} is a {mujoco.mjtGeom(m.geom_type[g]).name}; meshes, cylinders"
+                    " and boxes are fitted"
+                )
             world = d.geom_xpos[g] + v @ d.geom_xmat[g].reshape(3, 3).T
             verts.append((world - ob) @ Rb)  # into the link frame
         return link_proxy(np.vstack(verts))

@@ -79,7 +79,14 @@ class SolverConfig:
         rate: control rate [Hz]; dt = 1 / rate.
         solver_id: id published in every command.
         wrist_position_cost: weight of wrist position rows [1/m].
-        wrist_orientation_cost: weight of wrist orientation rows [1/rad] (0 = position only).
+        wrist_orientation_cost: weight of wrist orientation rows [1/rad] (0 = position only). Off level 1 the
+            rows ``cost * (J qd - w_ff - orientation_gain * e)`` share a least-squares level with the elbows'
+            ``1 * (J qd - v_ff - gain * e)``, so where they conflict the level settles with its errors weighed
+            by ``cost^2 * gain``: at equal gains an orientation error weighs ``cost^2`` against an elbow error,
+            as in mink, whose costs weigh the errors themselves (the mink peer gets the same cost). 0.045 since
+            session 18 (with ``orientation_gain`` 200), a lighter orientation than the 0.3 at gain 30 before
+            (2.0e-3 against 1.35e-2 [m^2/rad^2]); 0.116, that old weight at gain 200, left the HQP elbow at
+            0.861 cm mean (25 clips, no sim) against 0.714, for the same clips within 10 deg.
         elbow_cost: weight of elbow position rows [1/m].
         posture_cost: weight of the posture rows [1/rad].
         gain: task error gain [1/s] (wrist and elbow positions; the paper's wrist poses at level 1).
@@ -87,10 +94,13 @@ class SolverConfig:
             the solver must close before the next: 200 halves the wrist error of 50 on the real
             clips (0.17 -> 0.07 cm mean) and lowers the elbow error too. Capped at
             ``MAX_GAIN_DT * rate`` so a low control rate stays stable.
-        orientation_gain: error gain [1/s] of the wrist orientations when they are not on level 1;
-            None = ``gain``. Lower than the position gain: the G1 wrist's orientation freedom is
-            small once positions are held, and a stiff orientation task drives the wrist joints
-            into their stops (wrist flips at 100-200).
+        orientation_gain: error gain [1/s] of the wrist (and elbow) orientations when they are not on level 1;
+            None = ``gain``. At 30 (until session 18) the hand closed the step each 30 fps mocap frame puts in
+            its extrapolated target within 33 ms, one frame, and never caught up on a turning hand; at 200, the
+            cost 0.045, 25 clips (``mimic eval --algos hqp-nullspace,wqp,mink``, sim on): HQP elbow mean
+            0.797 -> 0.715 cm (sim 1.148 -> 1.041), rotation p99 <= 10 deg on 14 clips of 23 (11),
+            bye_normal 16.0 -> 12.2 deg, byebye_happy elbow 1.72 -> 1.22 cm. (With the wrist point 4.6 cm past
+            the pitch axis, before session 15, a stiff orientation drove the wrist joints into their stops.)
         posture_gain: posture error gain [1/s].
         damping: per-level damping ``eps ||z||^2`` (level 1, then lower levels): keeps joint
             velocities finite near singular directions (the velocity limits bound them anyway).
@@ -176,7 +186,9 @@ class SolverConfig:
             (byebye_happy 1.7 -> 10.0), rotation p99 <= 10 deg on 9 clips of 23 against 11.
         elbow_orientation_cost: weight [1/rad] of the elbow orientation rows, on level 2 beside the
             elbow positions (seed 000's elbow pose), used while the elbow targets carry
-            ``use_rotation`` (retarget ``--elbow-rotation``; ``mimic eval --paper``).
+            ``use_rotation`` (retarget ``--elbow-rotation``; ``mimic eval --paper``); at ``orientation_gain``:
+            0.116 at 200 weighs their errors as 0.3 did at gain 30 (``cost^2 * gain``, see
+            ``wrist_orientation_cost``), the paper's elbow pose as it was.
         recovery: lead an arm out of a lock-up (wrist tracked, elbow far off and not closing in, an arm joint at a
             stop: ``recovery.RecoveryConfig``) through a position-level IK posture, in the wrists' null space
             (``recovery.LockupRecovery``); strict hierarchies only (hqp-nullspace, hqp-original), the others have
@@ -272,11 +284,11 @@ class SolverConfig:
     rate: float = 500.0
     solver_id: str = "main"
     wrist_position_cost: float = 1.0
-    wrist_orientation_cost: float = 0.3
+    wrist_orientation_cost: float = 0.045
     elbow_cost: float = 1.0
     posture_cost: float = 1e-2
     gain: float = 200.0
-    orientation_gain: float | None = 30.0
+    orientation_gain: float | None = None
     posture_gain: float = 5.0
     damping: tuple[float, ...] = (1e-6, 1e-5)
     smoothing: bool = True
@@ -295,7 +307,7 @@ class SolverConfig:
     wrist_orientation_level: int = 2
     self_collision: bool = True
     trunk_projection: bool = False
-    elbow_orientation_cost: float = 0.3
+    elbow_orientation_cost: float = 0.116
     recovery: bool = True
     range_centring_cost: float = 3.0
     range_centring_band: float = 0.15
@@ -475,7 +487,7 @@ class SolverCore:
             og = gain if cfg.orientation_gain is None else min(cfg.orientation_gain, gain)
             self.orientation_tasks = [FrameTask(w, 0.0, cfg.wrist_orientation_cost, og) for w in WRISTS]
             if cfg.wrist_orientation_level == 2:
-                # Orientations weighed against the elbows (costs 0.3 [1/rad] vs 1 [1/m]).
+                # Orientations weighed against the elbows (costs 0.045 [1/rad] vs 1 [1/m], both at gain 200).
                 self.levels = [self.wrist_tasks, [*self.elbow_tasks, *self.orientation_tasks], [self.posture_task]]
             else:
                 self.levels = [self.wrist_tasks, self.elbow_tasks, [*self.orientation_tasks, self.posture_task]]

@@ -14,7 +14,7 @@ only the priority is soft. Level weights (1.0, 0.3, 1.0), squared in the objecti
   ``elbow_placement="swivel"``) the weight rarely matters, with the paper's per-axis
   mapped elbows it sets how far the elbow error trades against the wrist's;
 * level 3 (1.0 x each task's own cost): posture (cost 1e-2) and, with
-  ``wrist_orientation_level=3``, the wrist orientations (cost 0.3).
+  ``wrist_orientation_level=3``, the wrist orientations (cost 0.045).
 
 The seed does not give its weights; its WQP elbow error (5.58 cm mean) is what an
 elbow that is nearly ignored gives, so this WQP is the stronger of the two.

@@ -37,9 +37,10 @@ def test_paper_flag_applies_the_paper_setup(short_clip, tmp_path, capsys):
     assert s["retarget"]["orientation_reference"] == "rest"
     assert s["solver"]["wrist_orientation_level"] == 1
     assert s["solver"]["saturation_weight"] == 0.0  # the paper's hierarchy: strict on every tick
+    assert s["solver"]["wrist_orientation_cost"] == 0.3  # its full wrist poses weigh orientation as before
     d = default["settings"]
     assert (d["retarget"]["elbow_placement"], d["retarget"]["orientation_reference"]) == ("swivel", "forearm")
-    assert d["solver"]["wrist_orientation_level"] != 1
+    assert d["solver"]["wrist_orientation_level"] != 1 and d["solver"]["wrist_orientation_cost"] == 0.045
     assert d["solver"]["saturation_weight"] > 0.0  # the shipped saturation trade
     assert paper["clips"][0]["frames"] == default["clips"][0]["frames"] == FRAMES
     ep = paper["summary"]["hqp-nullspace"]["elbow_err_cm"]["mean"]

@@ -8,7 +8,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from services.solver.collision import SelfCollisionAvoidance, add_proxy_geom, link_proxy, proxy_contacts
+from services.solver.collision import (
+    SelfCollisionAvoidance,
+    add_proxy_geom,
+    link_proxy,
+    primitive_points,
+    proxy_contacts,
+)
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.inequalities import Inequalities
 from shared.messages import Header, Target, TaskTargets
@@ -49,6 +55,24 @@ def test_polytope_holds_the_hull_and_touches_it():
     assert np.all(corners @ px.normals.T <= px.offsets + 1e-12)
     assert np.allclose(np.sort(px.offsets[:6]), [0.05, 0.05, 0.1, 0.1, 0.15, 0.15])
     assert np.allclose(np.sort(np.abs(px.vertices()), axis=0).max(axis=0), [0.15, 0.1, 0.05], atol=1e-9)
+
+
+def test_cylinder_geom_proxy_holds_the_cylinder_and_hugs_it():
+    # A MuJoCo cylinder of radius 3 cm, half height 2.5 cm (the G1's shoulder pitch link): the proxy of its points
+    # holds every point of its surface, reaches no farther than 1 mm past it in any direction, and is flat on
+    # its ends; a kind the proxies do not fit says so.
+    pts = primitive_points(mujoco.mjtGeom.mjGEOM_CYLINDER, np.array([0.03, 0.025, 0.0]))
+    px = link_proxy(pts)
+    rng = np.random.default_rng(2)
+    phi, z = rng.uniform(0, 2 * np.pi, 5000), rng.uniform(-0.025, 0.025, 5000)
+    side = np.stack((0.03 * np.cos(phi), 0.03 * np.sin(phi), z), axis=1)
+    assert np.all(side @ px.normals.T <= px.offsets + 1e-12)
+    d = px.normals
+    # the cylinder's support along each face normal: radius times the radial part plus half height times |n_z|
+    support = 0.03 * np.linalg.norm(d[:, :2], axis=1) + 0.025 * np.abs(d[:, 2])
+    assert np.all(px.offsets >= support - 1e-12) and np.max(px.offsets - support) < 1e-3
+    assert np.isclose(np.abs(px.vertices()[:, 2]).max(), 0.025)
+    assert primitive_points(mujoco.mjtGeom.mjGEOM_ELLIPSOID, np.array([0.03, 0.02, 0.01])) is None
 
 
 TWO_LINKS = """

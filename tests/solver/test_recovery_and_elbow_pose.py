@@ -59,13 +59,16 @@ def test_wave_left_hand_has_no_lock_up_with_the_shipped_defaults(robot, tmp_path
     # session 15): the centring and the recovery are checked on that profile, where the lock is known.
     shipped = _wave_runs(robot, {"shipped": {}})["shipped"]
     assert shipped[0] == 0.0, shipped
+    # There the wrist orientations run as they did then (gain 30, cost 0.3): with session 18's (200, 0.045) the arm
+    # does not lock even without the centring (max 3.1 cm).
     hand = build_robot_model(load_profile(g1_with_the_hand_as_wrist_point(tmp_path)))
+    then = {"orientation_gain": 30.0, "wrist_orientation_cost": 0.3}
     out = _wave_runs(
         hand,
         {
-            "shipped": {},
-            "no_centring": {"range_centring_cost": 0.0, "recovery": False},
-            "recovery_only": {"range_centring_cost": 0.0},
+            "shipped": then,
+            "no_centring": {**then, "range_centring_cost": 0.0, "recovery": False},
+            "recovery_only": {**then, "range_centring_cost": 0.0},
         },
     )
     # Without the joint-range centring the elbow sits ~25 cm off for more than 0.3 s (the lock-up the
@@ -119,4 +122,4 @@ def test_elbow_orientations_are_tracked_on_level_2_when_asked(robot):
         assert any(t in core.levels[1] for t in core.elbow_orientation_tasks) == flag
         # level 1 (wrist positions) is untouched by the elbow orientation rows
         assert cmd.residuals[0] < 1e-3
-    assert errors[True] < 0.7 * errors[False], errors  # measured 14.6 vs 25.4 deg: the rows trade against the others
+    assert errors[True] < 0.7 * errors[False], errors  # measured 14.4 vs 25.2 deg: the rows trade against the others

@@ -84,9 +84,10 @@ def test_the_solver_trades_only_on_ticks_whose_wrists_cannot_be_met(robot17):
     strict_core, strict = _tick(robot, SolverConfig(qp="daqp", saturation_weight=0.0), fast)
     assert strict_core.saturation is None  # 0 turns it off: the strict hierarchy on every tick
     r1, r2 = strict.residuals[:2]
-    # At weight 2 the elbow level, which the strict optimum left nothing, gets a share (measured 1.608 against
-    # 1.687) for a wrist residual within the cap; the shipped weight 4 trades the same tick for less (the wrists
-    # give 5e-6 of 6.79 m/s, the elbows gain 7e-5: the weight sets how much, the cap how much at most).
+    # At weight 2 and at the shipped 4 the elbow level, which the strict optimum left nothing, gets a share for a
+    # wrist residual within the cap (the wrists give 5e-6 of 6.79 m/s, the elbows gain 2.5e-5 of 0.660; 1.608
+    # against 1.687 at weight 2 before session 18, when the wrist orientations' rows, gain 30 and cost 0.3, made
+    # most of level 2's residual here and the shoulder links were not guarded).
     for cfg in (SolverConfig(qp="daqp", saturation_weight=2.0), SolverConfig(qp="daqp")):
         traded_core, traded = _tick(robot, cfg, fast)
         assert strict.status == traded.status == "infeasible"
@@ -94,8 +95,6 @@ def test_the_solver_trades_only_on_ticks_whose_wrists_cannot_be_met(robot17):
         assert traded.residuals[0] > r1 + 1e-6  # ... and do give something up
         assert traded.residuals[1] < r2 - 1e-5  # ... for the elbows
         assert traded_core.saturation.counts["traded"] == 1
-    _, at2 = _tick(robot, SolverConfig(qp="daqp", saturation_weight=2.0), fast)
-    assert at2.residuals[1] < 0.97 * r2
     # Met: the same targets at rest, 0.1 mm off: the wrists are met and the solution is the strict one, bit for bit.
     near = targets_from_q(robot, robot.q_rest, offset=np.array([0.0, 0.0, 1e-4]))
     _, strict = _tick(robot, SolverConfig(qp="daqp", saturation_weight=0.0), near)
