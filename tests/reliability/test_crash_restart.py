@@ -29,13 +29,12 @@ import pytest
 from services.launcher.supervisor import stop_processes
 from shared.bus import free_port
 from shared.paths import REPO_ROOT
-from tests.support.faults import PIPELINE, crash_restart, running_stack, vmax_by_joint
+from tests.support.faults import PIPELINE, SOLVER_DT, crash_restart, running_stack, vmax_by_joint
 from tests.support.observer import Observer
 
 REPO = REPO_ROOT
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 VMAX = max(vmax_by_joint().values())  # [rad/s] (4 on every G1 joint)
-SOLVER_DT = 1.0 / 500.0  # mimic solve default rate
 #: Measured joints may exceed the servo's vmax a little (PD tracking); a jump (a joint teleporting) is
 #: orders of magnitude beyond this: 1 rad in one 5 ms state period is 200 rad/s.
 STATE_VEL_TOL = 1.5 * VMAX

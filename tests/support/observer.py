@@ -38,6 +38,8 @@ class CommandSample:
     qd: np.ndarray
     status: str
     reason: str
+    #: the solver's time the command is for [s] (``JointCommand.t_cmd``)
+    t_cmd: float = float("nan")
 
 
 @dataclass
@@ -81,7 +83,9 @@ class Observer:
     def _on_command(self, s: zenoh.Sample) -> None:
         m = JointCommand.decode(s.payload.to_bytes())
         with self.lock:
-            self.commands.append(CommandSample(time.monotonic(), m.hdr.seq, m.solver_id, m.q, m.qd, m.status, m.reason))
+            self.commands.append(
+                CommandSample(time.monotonic(), m.hdr.seq, m.solver_id, m.q, m.qd, m.status, m.reason, m.t_cmd)
+            )
 
     def _on_status(self, s: zenoh.Sample) -> None:
         st = ServiceStatus.decode(s.payload.to_bytes())
