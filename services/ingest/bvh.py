@@ -223,6 +223,10 @@ class _Hierarchy:
             if len(c) < 2 or c[0].upper() not in _AXES or c[1:].lower() not in ("position", "rotation"):
                 raise self.err(f"joint {joint}: unknown channel {c!r} (expected [XYZ]position or [XYZ]rotation)", ln)
             chans.append(c)
+        for kind in ("position", "rotation"):
+            axes = [c[0].upper() for c in chans if c[1:].lower() == kind]
+            if len(set(axes)) != len(axes):  # an Euler order like XXY has no rotation (nor a position two x's)
+                raise self.err(f"joint {joint}: repeated {kind} axis in channels {' '.join(chans)}", ln)
         return chans
 
     def end_site(self) -> None:

@@ -21,4 +21,4 @@ def test_retarget_counts_every_bad_payload_and_emits_no_nan(local_stack):
     # source and accepted; a stamp going backwards within one source is not).
     rej = report["service_rejects"]
     assert rej.get("seq_backwards", 0) + rej.get("time_backwards", 0) > 0, report
-    assert report["ok"]
+    assert report["ok"], report

@@ -191,6 +191,8 @@ def test_broken_files_give_clear_errors(tmp_path, bandai):
         "short_row": ("\n".join([*lines[:-1], "1 2 3"]), r"frame \d+ has 3 values, the hierarchy declares 132"),
         "nan_value": (text.replace(lines[-1], "nan " + " ".join(lines[-1].split()[1:])), "NaN or inf"),
         "bad_channel": (text.replace("Zrotation", "Wrotation", 1), "unknown channel 'Wrotation'"),
+        # found by test_robustness's fuzzing: an Euler order with a repeated axis reached scipy's own ValueError
+        "repeated_axis": (text.replace("Zrotation", "Xrotation", 1), "repeated rotation axis in channels"),
         "bad_offset": (text.replace("OFFSET 0.0408292", "OFFSET zero", 1), "expected a number, got 'zero'"),
         "not_bvh": ("hello\nMOTION\n", "expected HIERARCHY"),
         "zero_frame_time": (text.replace("Frame Time:\t0.0333333", "Frame Time: 0"), "Frame Time must be > 0"),
