@@ -29,6 +29,7 @@ from services.evaluation.metrics import (
 from services.evaluation.mink_peer import PEERS, MinkMissingError, require_mink
 from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
 from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_retarget, run_algorithm
+from services.ingest.demo_motion import DEMO_MOTIONS, demo_clip_paths
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
 from services.retarget.retargeter import RetargetConfig
@@ -69,7 +70,14 @@ EVAL_SWITCHES = SWITCHES | {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("clips", nargs="+", help="BVH or C3D clips")
+    p.add_argument("clips", nargs="*", help="BVH or C3D clips")
+    p.add_argument(
+        "--demo",
+        action="append",
+        choices=sorted(DEMO_MOTIONS),
+        default=[],
+        help="also evaluate a bundled demo motion, generated as mimic publish --demo plays it (repeatable)",
+    )
     p.add_argument(
         "--algos",
         default="hqp-nullspace,hqp-original,wqp",
@@ -187,6 +195,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(SolverConfig.waist_follow_cost; default: SolverConfig's, 0 = off); compare waist_vs_operator_deg",
     )
     p.add_argument(
+        "--waist-damping-cost",
+        type=float,
+        default=None,
+        help="strict HQPs: damp the waist's velocity towards zero on level 2 at this weight [s/rad] "
+        "(SolverConfig.waist_damping_cost; default: SolverConfig's, 0 = off); compare waist_speed_rms and the "
+        "*_sim errors",
+    )
+    p.add_argument(
         "--saturation-trigger",
         choices=SATURATION_TRIGGERS,
         default=None,
@@ -211,6 +227,8 @@ def _speed_cap(text: str) -> float:
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
+    if not args.clips and not getattr(args, "demo", []):
+        raise SystemExit("mimic eval: give at least one clip or --demo NAME")
     algos, solver, wqp_weights, retarget = _settings(args)
     profile = load_profile()
     if getattr(args, "max_joint_velocity", None) is not None:
@@ -229,10 +247,11 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         if policy:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
-    bar = tqdm(total=len(args.clips) * len(runs), desc="eval", unit="run", file=sys.stderr)
+    paths = [*args.clips, *demo_clip_paths(getattr(args, "demo", []))]
+    bar = tqdm(total=len(paths) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
     failed: list[dict] = []  # (clip, algo) runs that raised: recorded, the rest go on
-    for path in args.clips:
+    for path in paths:
         try:
             clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
         except (ClipError, OSError, ValueError, RuntimeError) as exc:
@@ -374,9 +393,9 @@ def _settings(args: argparse.Namespace) -> tuple[list[str], dict, tuple[float, .
         saturation = 0.0  # the paper's hierarchy is strict on every tick, a saturated one too
     if saturation is not None:
         solver["saturation_weight"] = saturation
-    follow = getattr(args, "waist_follow_cost", None)
-    if follow is not None:
-        solver["waist_follow_cost"] = follow
+    for field in ("waist_follow_cost", "waist_damping_cost"):
+        if getattr(args, field, None) is not None:
+            solver[field] = getattr(args, field)
     trigger = getattr(args, "saturation_trigger", None)
     if trigger is not None:
         solver["saturation_trigger"] = trigger

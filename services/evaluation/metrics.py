@@ -150,6 +150,15 @@ def jerk_rms(trace: Trace) -> float | None:
     return float(np.sqrt(np.mean(j * j)))
 
 
+def waist_speed_rms(trace: Trace, robot: RobotModel) -> float | None:
+    """RMS over ticks and waist joints of the commanded waist velocity [rad/s] (None without a waist): how much the
+    torso moves, which the operator's barely does in a gesture (``SolverConfig.waist_damping_cost``)."""
+    idx = [robot.joint_names.index(j) for j in robot.profile.waist if j in robot.joint_names]
+    if not idx or not len(trace.qd):
+        return None
+    return float(np.sqrt(np.mean(trace.qd[:, idx] ** 2)))
+
+
 def position_errors(ref: dict, got: dict, ok: dict, names, mask: np.ndarray | None = None) -> np.ndarray:
     """Euclidean errors [m] over ticks and targets where the reference is valid (and ``mask``)."""
     out = []
@@ -301,6 +310,7 @@ def trace_metrics(
         "qp_fallbacks": int(trace.counts.get("qp_fallbacks", 0)),
     }
     m["jerk_rms"] = jerk_rms(trace)
+    m["waist_speed_rms"] = waist_speed_rms(trace, robot)
     if trace.clearance is not None:
         m["self_collisions"] = int(np.sum(trace.collide))
         m["self_collision_source"] = "sim contacts" if sim else "kinematic clearance < 0"

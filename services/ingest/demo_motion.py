@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -256,6 +257,22 @@ def generate_demo_clips(outdir: str | Path, fps: float = DEMO_FPS) -> list[Path]
     paths = [write_bvh(outdir / f"{name}.bvh", make(fps=fps)) for name, make in DEMO_MOTIONS.items()]
     log.info("wrote demo motions %s", [str(p) for p in paths])
     return paths
+
+
+def demo_clip_paths(names: list[str], outdir: str | Path | None = None) -> list[Path]:
+    """BVH files of the demo motions ``names`` (keys of :data:`DEMO_MOTIONS`), generated into ``outdir``
+    (None: a fresh temporary folder: the motions are generated, not shipped, so they go where nothing else lives).
+
+    Raises:
+        ValueError: an unknown name (one line, naming the known ones).
+    """
+    unknown = [n for n in names if n not in DEMO_MOTIONS]
+    if unknown:
+        raise ValueError(f"unknown demo motion(s) {unknown}; known: {sorted(DEMO_MOTIONS)}")
+    if not names:
+        return []
+    paths = dict(zip(DEMO_MOTIONS, generate_demo_clips(outdir or tempfile.mkdtemp(prefix="mimic-demo-"))))
+    return [paths[n] for n in names]
 
 
 # --------------------------------------------------------------------------- CLI (mimic demo-motion)

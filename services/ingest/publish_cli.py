@@ -9,13 +9,12 @@ across loops), ``hdr.t0`` = ``time.time_ns()`` at publish.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 from services.ingest.clip import ClipError, load_clip
-from services.ingest.demo_motion import DEMO_MOTIONS, generate_demo_clips
+from services.ingest.demo_motion import DEMO_MOTIONS, demo_clip_paths
 from services.ingest.playback import Playback
 from shared.bus import ServiceRunner, add_bus_args
 from shared.report import emit_json
@@ -50,8 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def load_for_playback(args: argparse.Namespace):
     """Load and slice the clip named by ``args`` (raises ClipError)."""
     if args.file is None:
-        # The demo motion is generated, not shipped: write it where nothing else lives.
-        args.file = generate_demo_clips(tempfile.mkdtemp(prefix="mimic-demo-"))[list(DEMO_MOTIONS).index(args.demo)]
+        args.file = demo_clip_paths([args.demo])[0]
     opts = {"up": args.up}
     if Path(args.file).suffix.lower() == ".bvh":
         opts["units"] = args.units

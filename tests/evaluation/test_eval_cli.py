@@ -83,3 +83,28 @@ def test_max_joint_velocity_caps_every_joint_of_the_run(short_clip, tmp_path, ca
         assert exc.value.code == 2
         err = capsys.readouterr().err.strip().splitlines()[-1]
         assert err.startswith("mimic eval: error: argument --max-joint-velocity:") and repr(bad) in err, err
+
+
+def test_demo_motions_are_evaluated_beside_clips_or_alone(short_clip, tmp_path, capsys):
+    """--demo NAME runs the generated demo motion as mimic publish --demo plays it, after the clips given; with
+    neither a clip nor --demo the command says so in one line."""
+    out = tmp_path / "demo.json"
+    argv = ["eval", str(short_clip), "--demo", "ellipse", "--algos", "hqp-nullspace", "--no-sim", "--json", str(out)]
+    assert mimic_main(argv) == 0
+    capsys.readouterr()
+    clips = json.loads(out.read_text())["clips"]
+    assert [c["clip"] for c in clips] == [short_clip.stem, "ellipse"]
+    assert clips[1]["frames"] > 60 * 6  # 7 s at the demo's 60 fps
+    assert clips[1]["algos"]["hqp-nullspace"]["wrist_err_cm"]["mean"] < 0.1
+    with pytest.raises(SystemExit) as exc:
+        mimic_main(["eval", "--json", str(tmp_path / "x.json")])
+    assert "give at least one clip or --demo NAME" in str(exc.value)
+
+
+def test_waist_damping_reaches_the_solver(short_clip, tmp_path, capsys):
+    """--waist-damping-cost sets SolverConfig.waist_damping_cost for the run (recorded in the JSON), and the metrics
+    carry waist_speed_rms."""
+    damped = _eval(short_clip, tmp_path, "--waist-damping-cost", "0.1")
+    capsys.readouterr()
+    assert damped["settings"]["solver"]["waist_damping_cost"] == 0.1
+    assert damped["clips"][0]["algos"]["hqp-nullspace"]["waist_speed_rms"] > 0.0

@@ -19,6 +19,7 @@ from services.evaluation.metrics import (
     stuck_seconds,
     summarise,
     trace_metrics,
+    waist_speed_rms,
 )
 from services.evaluation.reachability import IK_TOL, ArmIk, check_targets
 from services.evaluation.runner import load_and_retarget, run_algorithm
@@ -52,6 +53,15 @@ def test_jerk_of_a_cubic_is_its_constant_third_derivative(robot17):
     tr.q[:, 0] += 5.0 * t**3 / 6.0  # jerk 5 rad/s^3 on one joint of n
     n = tr.q.shape[1]
     assert jerk_rms(tr) == pytest.approx(5.0 / np.sqrt(n), rel=1e-6)
+
+
+def test_waist_speed_is_the_rms_over_ticks_and_waist_joints(robot17, robot14):
+    tr = synthetic_trace(robot17, {})
+    waist = [robot17.joint_names.index(j) for j in robot17.profile.waist]
+    tr.qd[:, waist[0]] = 3.0  # one of three waist joints at 3 rad/s throughout
+    tr.qd[:, -1] = 8.0  # an arm joint does not count
+    assert waist_speed_rms(tr, robot17) == pytest.approx(3.0 / np.sqrt(3.0))
+    assert waist_speed_rms(synthetic_trace(robot14, {}), robot14) is None  # no waist in the model
 
 
 def test_ik_check_reaches_forward_kinematics_and_rejects_far_points(robot14):
