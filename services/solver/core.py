@@ -174,18 +174,20 @@ class SolverConfig:
             ``waist_vs_operator_deg``), 29 deg on wave-right-hand_elderly whose operator turns 2. Measured in the
             solver README (session 13): a torso that follows, for some elbow error.
         waist_damping_cost: weight [s/rad] of rows ``cost * qd`` on the waist joints, on level 2 beside the elbows
-            (strict hierarchies only): the waist's velocity is damped towards zero; 0 = off (default). Why: level 2
-            holds the waist only through a near-singular direction (the waist turning while both arms undo it), and
-            its damping pulls towards the centre of the box, i.e. the last velocity, so each 30 fps frame's step
-            sends the waist off in a burst of up to its 3 rad/s cap (bye_normal: ``mimic eval``'s
-            ``waist_speed_rms`` 1.44 rad/s against the WQP's 0.97). The sim's waist servo, with the torso's inertia
-            behind it, cannot follow: on bye_normal the simulated wrist is 0.83 cm off where the command is 0.01 cm
-            off. 0.1, 25 clips (``mimic eval --waist-damping-cost 0.1``, HQP, sim): sim wrist mean 0.696 -> 0.623
-            cm (bye_normal 0.83 -> 0.13, byebye_normal 0.67 -> 0.40, wave-left-hand_normal 0.74 -> 0.45), sim elbow
-            1.041 -> 1.024, but the commanded elbow 0.715 -> 0.744 (run_elderly 0.47 -> 0.62, whose elbows use the
-            waist's bursts; wave-right-hand_normal 0.19 -> 0.74, the arm raised on another branch in its first 0.5 s).
-            Off by default for that: issue 12's goals score the commands. A user whose robot's waist cannot
-            follow bursts (a real G1's waist roll/pitch motors give ~6 rad/s^2) has it.
+            (strict hierarchies only): the waist's velocity is damped towards zero; 0 = off (default). Why: each
+            30 fps frame steps the elbow and orientation targets, level 2 closes the step at gain 200 in the wrists'
+            null space, and its least-squares answer moves the waist as readily as any arm joint (it carries both
+            shoulders: on bye_normal the level's strongest directions are 20-53 % waist), so the waist bursts up to
+            its 3 rad/s cap every frame interval, and nothing on a strict level prices its speed (bye_normal:
+            ``mimic eval``'s ``waist_speed_rms`` 1.44 rad/s against the WQP's 0.97, whose elbows weigh 0.09). The
+            sim's waist servo, with the torso's inertia behind it, cannot follow: on bye_normal the simulated wrist
+            is 0.83 cm off where the command is 0.01 cm off. 0.1, 25 clips (``mimic eval --waist-damping-cost
+            0.1``, HQP, sim): sim wrist mean 0.696 -> 0.623 cm (bye_normal 0.83 -> 0.13, byebye_normal 0.67 ->
+            0.40, wave-left-hand_normal 0.74 -> 0.45), sim elbow 1.041 -> 1.024, but the commanded elbow 0.715 ->
+            0.744 (run_elderly 0.47 -> 0.62, whose elbows use the waist's bursts; wave-right-hand_normal 0.19 ->
+            0.74, the arm raised on another branch in its first 0.5 s). Off by default for that: issue 12's goals
+            score the commands. A user whose robot's waist cannot follow bursts (a real G1's waist roll/pitch
+            motors give ~6 rad/s^2) has it.
         wrist_orientation_level: where the wrist orientations go (the wrist positions stay level 1).
             2 (default): wrist positions > elbows and wrist orientations (weighed by their costs) >
             posture. 3: wrist positions > elbows > wrist orientations (+ posture). 1: the paper's
