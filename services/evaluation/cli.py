@@ -227,7 +227,8 @@ def _speed_cap(text: str) -> float:
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     """Run every clip and algorithm; returns (result JSON, traces for plotting)."""
-    if not args.clips and not getattr(args, "demo", []):
+    demos = getattr(args, "demo", [])
+    if not args.clips and not demos:
         raise SystemExit("mimic eval: give at least one clip or --demo NAME")
     algos, solver, wqp_weights, retarget = _settings(args)
     profile = load_profile()
@@ -247,7 +248,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         if policy:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
-    paths = [*args.clips, *demo_clip_paths(getattr(args, "demo", []))]
+    paths = [*args.clips, *demo_clip_paths(demos)]
     bar = tqdm(total=len(paths) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
     failed: list[dict] = []  # (clip, algo) runs that raised: recorded, the rest go on

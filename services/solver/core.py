@@ -525,22 +525,24 @@ class SolverCore:
         #: (w,) positions in q of the waist joints, profile order (empty without a waist in the model)
         self._waist_idx = np.array(robot.indices(robot.profile.waist), dtype=int)
         #: the pull of the waist towards the operator's torso beside the elbows (``waist_follow_cost``), else None
-        self.waist_task: PostureTask | None = None
-        if cfg.waist_follow_cost > 0 and len(self._waist_idx) and cfg.algo in STRICT_ALGORITHMS:
-            cost = np.zeros(self.n)
-            cost[self._waist_idx] = cfg.waist_follow_cost
-            self.waist_task = PostureTask(robot.q_rest, cost, cfg.posture_gain)
-            self.levels = [self.levels[0], [*self.levels[1], self.waist_task], *self.levels[2:]]
+        self.waist_task = self._waist_row(cfg, cfg.waist_follow_cost, cfg.posture_gain)
         #: the waist's velocity damped towards zero beside the elbows (``waist_damping_cost``), else None: a posture
         #: row with gain 0 is ``cost * qd``
-        self.waist_damping_task: PostureTask | None = None
-        if cfg.waist_damping_cost > 0 and len(self._waist_idx) and cfg.algo in STRICT_ALGORITHMS:
-            cost = np.zeros(self.n)
-            cost[self._waist_idx] = cfg.waist_damping_cost
-            self.waist_damping_task = PostureTask(robot.q_rest, cost, 0.0)
-            self.levels = [self.levels[0], [*self.levels[1], self.waist_damping_task], *self.levels[2:]]
+        self.waist_damping_task = self._waist_row(cfg, cfg.waist_damping_cost, 0.0)
         self._setup_posture(robot, cfg, gain)
         self._position_tasks = list(self.wrist_tasks)
+
+    def _waist_row(self, cfg: SolverConfig, cost: float, gain: float) -> PostureTask | None:
+        """A posture task on the waist joints only (``cost`` [1/rad] each, ``gain`` [1/s] towards its target, the
+        rest pose until set), appended to level 2 beside the elbows; None when off (cost 0, no waist, or a
+        weighted algorithm)."""
+        if not (cost > 0 and len(self._waist_idx) and cfg.algo in STRICT_ALGORITHMS):
+            return None
+        costs = np.zeros(self.n)
+        costs[self._waist_idx] = cost
+        task = PostureTask(self.robot.q_rest, costs, gain)
+        self.levels = [self.levels[0], [*self.levels[1], task], *self.levels[2:]]
+        return task
 
     def _setup_posture(self, robot: RobotModel, cfg: SolverConfig, gain: float) -> None:
         """Seed 004's pieces: upper-arm alignment (clik-mimicry) and the wrist-only posture level."""

@@ -26,6 +26,7 @@ import numpy as np
 
 from services.evaluation.soak import FramePublisher, dropped_counts, latency_windows
 from services.launcher.local_stack import LocalStack
+from services.solver.core import SolverConfig
 from shared.bus import bus_args, free_port, open_session, query
 from shared.keys import Keys
 from shared.robot.pinocchio_model import build_robot_model
@@ -33,7 +34,7 @@ from tests.support.observer import Observer, StateSample
 
 PIPELINE = ("retarget", "solver", "sim")
 STATUS_PERIOD = 0.2  # [s] every service's status period in these scenarios
-SOLVER_DT = 1.0 / 500.0  # [s] one tick at mimic solve's default rate
+SOLVER_DT = 1.0 / SolverConfig().rate  # [s] one tick at mimic solve's default rate
 #: Measured q may lead the rate-limited servo target a little (PD tracking overshoot) [rad/s].
 VEL_TOL = 0.5
 
