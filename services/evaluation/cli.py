@@ -87,6 +87,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--skeleton-map", default=None, help="BVH skeleton map / C3D marker map file (TOML/JSON), as mimic publish"
     )
+    p.add_argument(
+        "--mirror",
+        action="store_true",
+        help="held-out motion: evaluate each clip's mirror image (the operator reflected through the sagittal "
+        "plane, left and right swapped: a left-handed wave from a right-handed one)",
+    )
+    p.add_argument(
+        "--speed",
+        type=_speed_factor,
+        default=1.0,
+        help="held-out motion: play each clip this many times as fast (e.g. 1.25; the frames are the same)",
+    )
     p.add_argument("--qp", default="daqp", choices=("piqp", "daqp"), help="QP backend")
     p.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
     p.add_argument(
@@ -214,15 +226,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
 
-def _speed_cap(text: str) -> float:
-    """``--max-joint-velocity``: a finite speed > 0 [rad/s], else a one-line usage error."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a speed in rad/s, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite speed > 0 [rad/s], got {text!r}")
-    return v
+def _positive(expected: str, must_be: str):
+    """An argparse type: a finite number > 0, else a one-line usage error naming ``expected`` / ``must_be``."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"must be {must_be}, got {text!r}")
+        return v
+
+    return parse
+
+
+#: ``--speed``: a play-back factor; ``--max-joint-velocity``: a speed [rad/s].
+_speed_factor = _positive("a speed factor such as 1.25", "a finite factor > 0")
+_speed_cap = _positive("a speed in rad/s", "a finite speed > 0 [rad/s]")
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
@@ -248,13 +269,16 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         if policy:
             runs += [(f"wrist-only+policy:{a}", a, True, {**solver, "posture_policy": policy}) for a in algos]
     clips_out, traces = [], {}
+    skeleton_map = getattr(args, "skeleton_map", None)
+    # held-out variants of every clip (ingest.variants): the same for each clip and algorithm
+    variant = {"mirror": getattr(args, "mirror", False), "speed": getattr(args, "speed", 1.0)}
     paths = [*args.clips, *demo_clip_paths(demos)]
     bar = tqdm(total=len(paths) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
     failed: list[dict] = []  # (clip, algo) runs that raised: recorded, the rest go on
     for path in paths:
         try:
-            clip, targets = load_and_retarget(Path(path), robot, None, retarget, getattr(args, "skeleton_map", None))
+            clip, targets = load_and_retarget(Path(path), robot, None, retarget, skeleton_map, **variant)
         except (ClipError, OSError, ValueError, RuntimeError) as exc:
             # One bad or unknown-rig clip must not cost the user the whole run: say it in one
             # line, record it, go on with the others.
@@ -271,7 +295,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         if any(retarget.get(k) for k in MOVING_OPTIONS):
             # what the operator's motion gave before the targets were moved towards what the arm can do
             unmoved = {**retarget, **dict.fromkeys(MOVING_OPTIONS, False)}
-            _, plain = load_and_retarget(Path(path), robot, None, unmoved, getattr(args, "skeleton_map", None))
+            _, plain = load_and_retarget(Path(path), robot, None, unmoved, skeleton_map, **variant)
             entry["target_adjustment"] = target_adjustment(plain, targets)
         report = check_targets(_arms_model(robot), targets) if ik_check else None
         mask = None
@@ -325,7 +349,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         args, algos, solver, wqp_weights, retarget, robot.nq, robot.profile.max_joint_velocity
     )
     result["settings"] |= {
-        "skeleton_map": getattr(args, "skeleton_map", None),
+        "skeleton_map": skeleton_map,
+        "clip_variant": variant,
         "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
     }
     return result, traces

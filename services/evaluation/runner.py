@@ -28,6 +28,7 @@ import numpy as np
 
 from services.evaluation.mink_peer import MINK_LIMITED, PEERS, MinkPeer
 from services.ingest.clip import Clip, load_clip
+from services.ingest.variants import mirrored, played_at
 from services.retarget.retargeter import RetargetConfig, Retargeter
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.qp import make_backend
@@ -343,6 +344,8 @@ def load_and_retarget(
     mode: str | None = None,
     retarget: dict | None = None,
     skeleton_map: str | Path | None = None,
+    mirror: bool = False,
+    speed: float = 1.0,
 ) -> tuple[Clip, list[TaskTargets]]:
     """Load a clip and retarget it with a freshly calibrated retargeter (as the live service does).
 
@@ -350,11 +353,18 @@ def load_and_retarget(
         mode: mapping mode (None: the service default, ``RetargetConfig().mode``).
         retarget: further :class:`RetargetConfig` fields (default: none, the service's own settings).
         skeleton_map: BVH skeleton map / C3D marker map file, as ``mimic publish --skeleton-map``.
+        mirror: retarget the clip's mirror image (:func:`~services.ingest.variants.mirrored`).
+        speed: play the clip this many times as fast (:func:`~services.ingest.variants.played_at`).
 
     Raises:
         ClipError (incl. SkeletonMapError): unreadable clip or a rig no map fits; one-line text.
+        ValueError: ``speed`` not a finite number > 0.
     """
     clip = load_clip(path, skeleton_map=skeleton_map)
+    if mirror:
+        clip = mirrored(clip)
+    if speed != 1.0:
+        clip = played_at(clip, speed)
     fields = dict(retarget or {})
     if mode is not None:
         fields["mode"] = mode

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from shared.mirror import arm_joints, mirror_points, mirror_quats, mirror_signs  # noqa: F401 (arm_joints, mirror_signs: part of the posture layout its users import)
 from shared.robot.pinocchio_model import RobotModel
 
 STATE_DIM = 14
@@ -71,11 +72,6 @@ HAND_INPUTS = 7
 #: Posture kind: gain K [1/s] of ``q̇₀ = K (q* - q)`` (the solver's elbow-task order of magnitude; with
 #: ACTION_LIMIT it saturates beyond 0.1 rad of shoulder error; 20 measured 0.3 cm better than 10).
 POSTURE_ACTION_GAIN = 20.0
-
-
-def arm_joints(robot: RobotModel, side: str) -> np.ndarray:
-    """Indices (7,) of the side's arm joints in the model's joint order (profile ``[arms.<side>]``)."""
-    return np.array([robot.joint_names.index(n) for n in robot.profile.arms[side].joints])
 
 
 def action_joints(robot: RobotModel, side: str) -> np.ndarray:
@@ -162,42 +158,6 @@ def virtual_target(arm: ArmFrame, z: np.ndarray) -> np.ndarray:
     return arm.centre + arm.upper * u + arm.fore * f
 
 
-#: Reflection of the robot base frame through its sagittal (x-z) plane.
-_MIRROR = np.diag([1.0, -1.0, 1.0])
-
-
-def mirror_signs(robot: RobotModel, trials: int = 3, tol: float = 1e-3) -> np.ndarray:
-    """Per arm joint (7,): the sign that maps a left-arm angle onto the mirrored right-arm angle.
-
-    Found on the model, not assumed: the sign vector for which the right arm at ``sign * q_left``
-    puts its elbow and wrist at the mirror image of the left arm's (and the wrist orientation at
-    ``M R M``) for random postures.
-
-    Raises:
-        ValueError: the robot's arms are not mirror images of each other (no sign vector fits).
-    """
-    left, right = arm_joints(robot, "left"), arm_joints(robot, "right")
-    rng = np.random.default_rng(0)
-    postures = [rng.uniform(-0.8, 0.8, len(left)) for _ in range(trials)]
-    for bits in range(2 ** len(left)):
-        sign = np.array([1.0 if (bits >> k) & 1 else -1.0 for k in range(len(left))])
-        ok = True
-        for ql in postures:
-            q = robot.q_rest.copy()
-            q[left], q[right] = ql, sign * ql
-            P = robot.frame_poses(q)
-            for f in ("elbow", "wrist"):
-                (pl, Rl), (pr, Rr) = P[f"left_{f}"], P[f"right_{f}"]
-                if np.linalg.norm(_MIRROR @ pl - pr) > tol or np.linalg.norm(_MIRROR @ Rl @ _MIRROR - Rr) > tol:
-                    ok = False
-                    break
-            if not ok:
-                break
-        if ok:
-            return sign
-    raise ValueError(f"{robot.profile.name}: the arms are not mirror images (no joint sign map found)")
-
-
 def mirror_state(S: np.ndarray, sign: np.ndarray) -> np.ndarray:
     """States (…, 14) of one arm as the other arm's: hand pose reflected through x-z, joints * sign (7,).
 
@@ -205,14 +165,12 @@ def mirror_state(S: np.ndarray, sign: np.ndarray) -> np.ndarray:
     other arm's rest wrist is the mirror image of this one's.
     """
     out = np.array(S, dtype=float, copy=True)
-    out[..., [1, 3]] *= -1.0
-    out[..., 5] *= -1.0
+    out[..., 0:4] = mirror_quats(out[..., 0:4])
+    out[..., 4:7] = mirror_points(out[..., 4:7])
     out[..., 7:14] *= sign
     return out
 
 
 def mirror_arm_state(Z: np.ndarray) -> np.ndarray:
     """Operator arm states (…, 6) reflected through the x-z plane (both directions' y negated)."""
-    out = np.array(Z, dtype=float, copy=True)
-    out[..., [1, 4]] *= -1.0
-    return out
+    return np.concatenate([mirror_points(Z[..., 0:3]), mirror_points(Z[..., 3:6])], axis=-1)

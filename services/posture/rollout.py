@@ -212,7 +212,8 @@ class ArmsModel:
         self.Q_ref = [matrix_to_quat(rest[f"{s}_wrist"][1]) for s in SIDES]
         from services.retarget.elbow import ArmGeometry
 
-        geo = [ArmGeometry.measure(robot, s) for s in SIDES]
+        arms = ArmGeometry.measure_arms(robot)
+        geo = [arms[s] for s in SIDES]
         self.frames = [ArmFrame(g.centre.copy(), g.upper, g.fore) for g in geo]
         #: per side: the swivel kind's circle and angle reference
         self.swivel = [SwivelFrame.for_arm(g.centre, g.upper, g.fore, s) for g, s in zip(geo, SIDES)]

@@ -31,13 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from shared.messages import HumanFrame
+from shared.mirror import mirror_points, mirror_quats, other_side
 from shared.targets import SIDES, TARGET_NAMES, elbow_of, wrist_of
 
 #: Bones that must be valid for an anthropometric calibration of each arm.
 ARM_BONES = {side: (f"{side}_shoulder", f"{side}_elbow", f"{side}_wrist") for side in SIDES}
 #: Smallest distance between the rest value and each extent [m].
 MIN_SPAN = 0.02
-_MIRROR = np.array([1.0, -1.0, 1.0])
 #: Operator arm length, shoulder to wrist [m], assumed by :func:`from_wrists` (adult median ~0.55-0.6).
 DEFAULT_ARM_LENGTH = 0.55
 #: Share of the arm length that is the upper arm (adult anthropometry: ~0.30 of ~0.55 m).
@@ -219,6 +219,15 @@ def _widen(lo: np.ndarray, rest: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray
     return np.minimum(lo, rest - MIN_SPAN), np.maximum(hi, rest + MIN_SPAN)
 
 
+def _mirror_arm(src_side: str, dst_side: str, rest: dict, rest_q: dict, lower: dict, upper: dict) -> None:
+    """Give ``dst_side``'s wrist and elbow the mirror image of ``src_side``'s calibration, in place."""
+    for src, dst in ((wrist_of(src_side), wrist_of(dst_side)), (elbow_of(src_side), elbow_of(dst_side))):
+        rest[dst] = mirror_points(rest[src])
+        rest_q[dst] = mirror_quats(rest_q[src])
+        a, b = mirror_points(lower[src]), mirror_points(upper[src])
+        lower[dst], upper[dst] = np.minimum(a, b), np.maximum(a, b)
+
+
 def anthropometric(
     frame: HumanFrame,
     bone_of: Mapping[str, str] | None = None,
@@ -269,13 +278,8 @@ def anthropometric(
         # One-armed capture (e.g. a right-arm marker set): mirror the measured arm across the
         # sagittal plane so the calibration is complete; the missing arm's targets stay invalid
         # until its bones arrive, and then map with a plausible mirrored calibration.
-        (other,) = set(SIDES) - {side}
-        for src, dst in ((wrist_of(other), wrist_of(side)), (elbow_of(other), elbow_of(side))):
-            rest[dst] = rest[src] * _MIRROR
-            w, x, y, z = rest_q[src]
-            rest_q[dst] = np.array([w, -x, y, -z])  # S R S with S = diag(1, -1, 1)
-            lower[dst] = np.minimum(lower[src] * _MIRROR, upper[src] * _MIRROR)
-            upper[dst] = np.maximum(lower[src] * _MIRROR, upper[src] * _MIRROR)
+        other = other_side(side)
+        _mirror_arm(other, side, rest, rest_q, lower, upper)
         lengths[side] = lengths[other]
         source = f"anthropometric ({side} mirrored from {other}: {failures[side]})"
     return Calibration(rest, rest_q, lower, upper, source=source, arm_length=lengths)
@@ -328,14 +332,8 @@ def from_wrists(
         raise CalibrationError(f"no wrist to calibrate from: {'; '.join(failures.values())}")
     source = f"wrists (arm length {arm_length:g} m assumed)"
     for side in failures:
-        other = "right" if side == "left" else "left"
-        for joint in ("wrist", "elbow"):
-            src, dst = f"{other}_{joint}", f"{side}_{joint}"
-            rest[dst] = rest[src] * _MIRROR
-            w, x, y, z = rest_q[src]
-            rest_q[dst] = np.array([w, -x, y, -z])
-            lower[dst] = np.minimum(lower[src] * _MIRROR, upper[src] * _MIRROR)
-            upper[dst] = np.maximum(lower[src] * _MIRROR, upper[src] * _MIRROR)
+        other = other_side(side)
+        _mirror_arm(other, side, rest, rest_q, lower, upper)
         lengths[side] = lengths[other]
         source += f" ({side} mirrored from {other})"
     return Calibration(rest, rest_q, lower, upper, source=source, arm_length=lengths)

@@ -19,10 +19,11 @@ residual about 0.5 cm).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from shared.mirror import mirror_points, mirrored_arms
 from shared.robot.pinocchio_model import RobotModel
 from shared.targets import elbow_of, wrist_of
 
@@ -87,6 +88,21 @@ class ArmGeometry:
             dist.append(np.linalg.norm(robot.frame_poses(q0, names=(wrist,))[wrist][0] - c))
         reach = (min(dist) + REACH_MARGIN, max(dist) - REACH_MARGIN)
         return cls(c, upper, fore, n0 / np.linalg.norm(n0), reach)
+
+    @classmethod
+    def measure_arms(cls, robot: RobotModel) -> dict[str, ArmGeometry]:
+        """Both arms (side -> geometry); a robot whose arms are mirror images (:func:`shared.mirror.mirrored_arms`)
+        gets the left arm's measure mirrored for the right one.
+
+        Why: each side's sphere fit is over its own random postures, and the G1's shoulder axes do not meet,
+        so two fits put the centres about a millimetre off each other's mirror image, and a mirror-image
+        operator's elbow targets then differed from the mirror image of the operator's (``mimic eval --mirror``).
+        """
+        left = cls.measure(robot, "left")
+        if mirrored_arms(robot) is None:
+            return {"left": left, "right": cls.measure(robot, "right")}
+        right = replace(left, centre=mirror_points(left.centre), default_swivel=mirror_points(left.default_swivel))
+        return {"left": left, "right": right}
 
     def reachable(self, wrist: np.ndarray) -> np.ndarray:
         """The wrist target (3,) [m] moved radially into the reach shell around the shoulder centre."""

@@ -29,11 +29,12 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from services.retarget.workspace import Workspace, cache_dir
+from shared.mirror import mirror_points
 from shared.rotations import norm3
 
 log = logging.getLogger(__name__)
@@ -152,6 +153,12 @@ class ReachMap:
             except OSError as exc:
                 log.warning("could not cache reach map at %s: %s", path, exc)
         return rmap
+
+    def mirrored(self) -> ReachMap:
+        """The map of the mirror-image arm (reflected through the base frame's x-z plane): the other side of a
+        robot whose arms are mirror images gets exactly this, where a map of its own would sit on a grid that is
+        not mirror symmetric (:func:`fibonacci_sphere`) and differ by up to 0.3 mm."""
+        return replace(self, centre=mirror_points(self.centre), dirs=mirror_points(self.dirs))
 
     def _weights(self, u: np.ndarray) -> np.ndarray:
         # exp(kappa (cos - 1)) peaks at 1 for the grid direction along u; only ~100 neighbours matter

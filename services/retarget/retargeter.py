@@ -267,18 +267,17 @@ class Retargeter(FrameIntake):
         self.robot_rest = {t: (rest[t][0].copy(), rest[t][1].copy()) for t in TARGET_NAMES}
         reach = self.config.mode == "reach"
         #: side -> robot arm geometry for the swivel elbow placement and the reach map
-        self.arms = (
-            {s: ArmGeometry.measure(self.robot, s) for s in SIDES}
-            if self.config.elbow_placement == "swivel" or reach
-            else {}
-        )
+        self.arms = ArmGeometry.measure_arms(self.robot) if self.config.elbow_placement == "swivel" or reach else {}
         #: side -> reachable radii per direction from the shoulder ("reach" mode)
         self.reach: dict[str, ReachMap] = {}
         if reach:
             cloud = load_workspace(
                 prof, self.config.reach_samples, self.config.seed, self.config.with_waist, robot=self.robot
             )
-            self.reach = {s: ReachMap.cached(cloud, s, self.arms[s].centre) for s in SIDES}
+            left = ReachMap.cached(cloud, "left", self.arms["left"].centre)
+            # a robot whose arms mirror each other (pooled clouds) gets mirror-image maps
+            right = left.mirrored() if cloud.meta.get("mirror_pooled") else None
+            self.reach = {"left": left, "right": right or ReachMap.cached(cloud, "right", self.arms["right"].centre)}
         #: side -> the operator's upper arm as the robot's upper-arm link orientation (seed 004 eq. 6)
         self.upper_arm_maps: dict[str, UpperArmSolver] = {}
         if self.config.upper_arms and self.arms:

@@ -32,14 +32,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from shared.mirror import mirror_points, mirrored_arms
 from shared.robot.pinocchio_model import RobotModel, build_robot_model
 from shared.robot.profile import DEFAULT_PROFILE, RobotProfile, load_profile
 from shared.targets import TARGET_NAMES
 
 log = logging.getLogger(__name__)
 
-#: Bumped whenever the cached content or its computation changes.
-CACHE_VERSION = 1
+#: Bumped whenever the cached content or its computation changes (2: mirror-pooled clouds, session 21).
+CACHE_VERSION = 2
 DEFAULT_SAMPLES = 12_000
 DEFAULT_PERCENTILE = 0.05
 
@@ -180,6 +181,32 @@ def sample_workspace(
     return {t: out[k] for k, t in enumerate(targets)}
 
 
+def pool_mirror_images(points: dict[str, np.ndarray], robot: RobotModel) -> bool:
+    """Give each arm's clouds the other arm's samples too, mirrored, when the arms are mirror images.
+
+    Why: each arm's cloud is its own Monte Carlo draw, so the two 5-95 % boxes (and the reach radii) differ
+    by the sampling noise, and a mirror-image operator got targets 0.2 cm apart from the mirror image of the
+    operator's (``mimic eval --mirror``, session 21: wave-left-hand_normal's wrists 0.22 cm on every frame).
+    Pooled, the right arm's cloud is exactly the mirror image of the left arm's, from twice the samples.
+    Nothing changes for a robot whose arms differ in kinematics or joint ranges
+    (:func:`shared.mirror.mirrored_arms`).
+
+    Args:
+        points: target -> (n, 3) samples [m] in the base frame, replaced in place by (2n, 3) clouds.
+
+    Returns:
+        True when the clouds were pooled.
+    """
+    if mirrored_arms(robot) is None:
+        return False
+    for part in ("wrist", "elbow"):
+        left, right = f"left_{part}", f"right_{part}"
+        if left in points and right in points:
+            both = np.vstack([points[left], mirror_points(points[right])])
+            points[left], points[right] = both, mirror_points(both)
+    return True
+
+
 def _cache_key(profile: RobotProfile, joints: tuple[str, ...], samples: int, seed: int) -> str:
     h = hashlib.sha256()
     for path in (profile.source, profile.urdf_path):
@@ -222,13 +249,15 @@ def load_workspace(
             with np.load(path) as z:
                 points = {t: z[t] for t in TARGET_NAMES}
             log.info("workspace loaded from cache %s", path)
-            return Workspace(points, shrink=shrink, meta=meta | {"cached": True})
+            pooled = len(points["left_wrist"]) == 2 * samples
+            return Workspace(points, shrink=shrink, meta=meta | {"cached": True, "mirror_pooled": pooled})
         except (OSError, KeyError, ValueError) as exc:
             log.warning("workspace cache %s unreadable (%s); recomputing", path, exc)
     if robot is None or tuple(robot.joint_names) != tuple(joints):
         robot = build_robot_model(prof, with_waist=with_waist)
     log.info("computing workspace of %s: %d samples over %d joints", prof.name, samples, len(joints))
     points = sample_workspace(robot, samples, seed, progress=progress)
+    pool_mirror_images(points, robot)
     if use_cache:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -237,4 +266,5 @@ def load_workspace(
             os.replace(tmp, path)
         except OSError as exc:
             log.warning("could not cache workspace at %s: %s", path, exc)
-    return Workspace(points, shrink=shrink, meta=meta | {"cached": False})
+    pooled = len(points["left_wrist"]) == 2 * samples
+    return Workspace(points, shrink=shrink, meta=meta | {"cached": False, "mirror_pooled": pooled})

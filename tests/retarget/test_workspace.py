@@ -26,7 +26,7 @@ def test_default_box_is_the_5_95_percentile_box(workspace):
     assert workspace.meta["samples"] == 12_000
     for t in TARGET_NAMES:
         pts = workspace.points[t]
-        assert pts.shape == (12_000, 3)
+        assert pts.shape == (24_000, 3)  # each arm's samples and the other arm's, mirrored (the G1's arms mirror)
         inside = np.mean((pts >= workspace.lower[t]) & (pts <= workspace.upper[t]), axis=0)
         np.testing.assert_allclose(inside, 0.9, atol=0.002)
         assert np.all(workspace.raw_lower[t] < workspace.lower[t])
