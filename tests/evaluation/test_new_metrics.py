@@ -121,6 +121,24 @@ def test_mink_peer_tracks_reachable_targets(robot17):
     assert tr.q.shape[1] == robot17.nq and set(np.unique(tr.status)) == {"ok"}
 
 
+def test_mink_peer_moves_only_the_joints_the_run_controls(robot14):
+    """An arms-only run (``mimic eval --no-waist``): mink's model still has the waist and legs, which must stay where
+    the robot holds them; a free waist put mink's arms where the 14-joint kinematics did not see them (8.5 cm wrist
+    error over the real clips, session 21)."""
+    from services.evaluation.mink_peer import MinkPeer
+
+    peer = MinkPeer(robot14)
+    q0 = peer.configuration.q.copy()
+    targets = fk_targets(robot14, np.arange(0.0, DURATION, 1.0 / RATE))
+    for k, tt in enumerate(targets):
+        for i in range(5):  # 500 Hz between 100 Hz targets
+            peer.step(tt if i == 0 else None, None, k / RATE + i * peer.dt)
+    others = np.setdiff1d(np.arange(len(q0)), peer.qpos_idx)
+    assert len(others) > 3  # waist and legs
+    np.testing.assert_allclose(peer.configuration.q[others], q0[others], atol=1e-9)  # QP round-off: 2e-16 rad
+    assert np.abs(peer.configuration.q[peer.qpos_idx] - q0[peer.qpos_idx]).max() > 0.1  # the arms did move
+
+
 def test_mink_peer_runs_when_a_target_is_never_valid(robot17):
     """A marker set without the left elbow (as on one of the C3D clips): mink gets the targets there are
     (it raises on a task whose target was never set) and still tracks them."""

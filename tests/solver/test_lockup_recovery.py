@@ -47,7 +47,8 @@ def kick(robot):
     # Q_LOCK was recorded on the targets as published before the trunk push was the default (session 13): with
     # the push the right wrist target, 2.5 cm inside the chest there, sits 4.6 cm in front of it, and from Q_LOCK
     # the elbow is still 2.8 cm off at 1 s (falling to 0.1 cm by the window's end): another scenario.
-    return clip_targets_until(KICK, robot, LOCK_END, retarget={"trunk_clearance": False})
+    # The locks were recorded on targets from each arm's own workspace draw (before session 21: per_arm_draws).
+    return clip_targets_until(KICK, robot, LOCK_END, retarget={"trunk_clearance": False}, per_arm_draws=True)
 
 
 def _right_arm_run(robot, frames, core: SolverCore) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
