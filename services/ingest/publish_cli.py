@@ -16,6 +16,7 @@ from pathlib import Path
 from services.ingest.clip import ClipError, load_clip
 from services.ingest.demo_motion import DEMO_MOTIONS, demo_clip_paths
 from services.ingest.playback import Playback
+from services.ingest.variants import mirrored
 from shared.bus import ServiceRunner, add_bus_args
 from shared.report import emit_json
 from shared.wrist_only import wrists_only
@@ -29,6 +30,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1 = real time)")
     parser.add_argument("--loop", action="store_true", help="loop until stopped")
+    parser.add_argument(
+        "--mirror",
+        action="store_true",
+        help="play the operator's mirror image (left and right swapped, reflected through the sagittal plane)",
+    )
     parser.add_argument("--start", type=float, default=None, help="clip time to start at [s]")
     parser.add_argument("--end", type=float, default=None, help="clip time to end at [s]")
     parser.add_argument("--skeleton-map", default=None, help="BVH skeleton map / C3D marker map file (TOML/JSON)")
@@ -47,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_for_playback(args: argparse.Namespace):
-    """Load and slice the clip named by ``args`` (raises ClipError)."""
+    """Load and slice the clip named by ``args``, mirrored with ``--mirror`` (raises ClipError)."""
     if args.file is None:
         args.file = demo_clip_paths([args.demo])[0]
     opts = {"up": args.up}
@@ -56,7 +62,7 @@ def load_for_playback(args: argparse.Namespace):
     clip = load_clip(args.file, skeleton_map=args.skeleton_map, **opts)
     if args.start is not None or args.end is not None:
         clip = clip.slice(args.start, args.end)
-    return clip
+    return mirrored(clip) if getattr(args, "mirror", False) else clip
 
 
 class NoReceiverError(RuntimeError):

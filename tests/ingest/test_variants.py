@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 import pytest
 
 from services.ingest import load_clip
+from services.ingest.publish_cli import add_arguments, load_for_playback
 from services.ingest.variants import mirrored, played_at
 from shared.mirror import MIRROR
 from shared.rotations import quats_to_matrices
@@ -53,3 +56,16 @@ def test_played_faster_keeps_the_frames(clip):
     for bad in (0, -1.0, float("nan"), float("inf"), True, "2"):
         with pytest.raises(ValueError, match="speed must be a finite number > 0"):
             played_at(clip, bad)
+
+
+def test_publish_plays_the_mirror_image(bvh_clips, clip):
+    """``mimic publish --mirror``: the clip the player gets is the mirror image, after the --start/--end slice."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    path = str(next(p for p in bvh_clips if p.name == CLIP))
+    plain = load_for_playback(parser.parse_args([path, "--start", "1.0", "--end", "2.0"]))
+    mirror = load_for_playback(parser.parse_args([path, "--start", "1.0", "--end", "2.0", "--mirror"]))
+    assert mirror.n_frames == plain.n_frames == 31
+    np.testing.assert_array_equal(mirror.positions["right_wrist"], plain.positions["left_wrist"] * [1.0, -1.0, 1.0])
+    frame = mirror.frame(0, seq=0)  # what goes on the bus
+    np.testing.assert_array_equal(frame.bones["right_wrist"].p, plain.positions["left_wrist"][0] * [1.0, -1.0, 1.0])
