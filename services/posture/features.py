@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from shared.mirror import arm_joints, mirror_points, mirror_quats, mirror_signs  # noqa: F401 (arm_joints, mirror_signs: part of the posture layout its users import)
+from shared.mirror import mirror_points, mirror_quats
 from shared.robot.pinocchio_model import RobotModel
 
 STATE_DIM = 14

@@ -28,10 +28,8 @@ from services.posture.features import (
     ArmFrame,
     action_dim,
     action_joints,
-    arm_joints,
     arm_state,
     elbow_action,
-    mirror_signs,
     posture_action,
     state,
 )
@@ -39,6 +37,7 @@ from services.posture.policy import PosturePolicy
 from services.posture.swivel import SwivelFrame
 from services.solver.clik_mimicry import DEFAULT_ETA, clik_step
 from shared.kinematics import AlignmentTask, Configuration
+from shared.mirror import arm_joints, mirror_signs
 from shared.robot.pinocchio_model import RobotModel
 from shared.robot.profile import upper_arm_frame
 from shared.rotations import matrix_to_quat, quat_to_matrix

@@ -275,9 +275,11 @@ class Retargeter(FrameIntake):
                 prof, self.config.reach_samples, self.config.seed, self.config.with_waist, robot=self.robot
             )
             left = ReachMap.cached(cloud, "left", self.arms["left"].centre)
-            # a robot whose arms mirror each other (pooled clouds) gets mirror-image maps
-            right = left.mirrored() if cloud.meta.get("mirror_pooled") else None
-            self.reach = {"left": left, "right": right or ReachMap.cached(cloud, "right", self.arms["right"].centre)}
+            if cloud.meta["mirror_pooled"]:  # arms that mirror each other get mirror-image maps
+                right = left.mirrored()
+            else:
+                right = ReachMap.cached(cloud, "right", self.arms["right"].centre)
+            self.reach = {"left": left, "right": right}
         #: side -> the operator's upper arm as the robot's upper-arm link orientation (seed 004 eq. 6)
         self.upper_arm_maps: dict[str, UpperArmSolver] = {}
         if self.config.upper_arms and self.arms:

@@ -243,28 +243,39 @@ def load_workspace(
     key = _cache_key(prof, joints, samples, seed)
     path = cache_dir() / f"{key}.npz"
     meta = {"profile": prof.name, "samples": samples, "seed": seed, "with_waist": with_waist, "cache_key": key}
-    shrink = shrink or Shrink()
-    if use_cache and path.exists():
-        try:
-            with np.load(path) as z:
-                points = {t: z[t] for t in TARGET_NAMES}
-            log.info("workspace loaded from cache %s", path)
-            pooled = len(points["left_wrist"]) == 2 * samples
-            return Workspace(points, shrink=shrink, meta=meta | {"cached": True, "mirror_pooled": pooled})
-        except (OSError, KeyError, ValueError) as exc:
-            log.warning("workspace cache %s unreadable (%s); recomputing", path, exc)
-    if robot is None or tuple(robot.joint_names) != tuple(joints):
-        robot = build_robot_model(prof, with_waist=with_waist)
-    log.info("computing workspace of %s: %d samples over %d joints", prof.name, samples, len(joints))
-    points = sample_workspace(robot, samples, seed, progress=progress)
-    pool_mirror_images(points, robot)
-    if use_cache:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-            np.savez_compressed(tmp, **points)
-            os.replace(tmp, path)
-        except OSError as exc:
-            log.warning("could not cache workspace at %s: %s", path, exc)
-    pooled = len(points["left_wrist"]) == 2 * samples
-    return Workspace(points, shrink=shrink, meta=meta | {"cached": False, "mirror_pooled": pooled})
+    points = _read_cache(path) if use_cache and path.exists() else None
+    cached = points is not None
+    if points is None:
+        if robot is None or tuple(robot.joint_names) != tuple(joints):
+            robot = build_robot_model(prof, with_waist=with_waist)
+        log.info("computing workspace of %s: %d samples over %d joints", prof.name, samples, len(joints))
+        points = sample_workspace(robot, samples, seed, progress=progress)
+        pool_mirror_images(points, robot)
+        if use_cache:
+            _write_cache(path, points)
+    # pooled clouds hold both arms' draws (the cache keeps them pooled)
+    meta |= {"cached": cached, "mirror_pooled": len(points["left_wrist"]) == 2 * samples}
+    return Workspace(points, shrink=shrink or Shrink(), meta=meta)
+
+
+def _read_cache(path: Path) -> dict[str, np.ndarray] | None:
+    """The cached clouds at ``path``, or None (with a warning) when the file cannot be read."""
+    try:
+        with np.load(path) as z:
+            points = {t: z[t] for t in TARGET_NAMES}
+    except (OSError, KeyError, ValueError) as exc:
+        log.warning("workspace cache %s unreadable (%s); recomputing", path, exc)
+        return None
+    log.info("workspace loaded from cache %s", path)
+    return points
+
+
+def _write_cache(path: Path, points: dict[str, np.ndarray]) -> None:
+    """Cache the clouds at ``path`` atomically (a warning when the folder is not writable)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+        np.savez_compressed(tmp, **points)
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("could not cache workspace at %s: %s", path, exc)

@@ -546,7 +546,8 @@ class SolverCore:
 
     def _setup_posture(self, robot: RobotModel, cfg: SolverConfig, gain: float) -> None:
         """Seed 004's pieces: upper-arm alignment (clik-mimicry) and the wrist-only posture level."""
-        from services.posture.features import action_joints, arm_joints
+        from services.posture.features import action_joints
+        from shared.mirror import arm_joints
 
         self.arm_idx = {s: arm_joints(robot, s) for s in SIDES}
         self.act_idx = {s: action_joints(robot, s) for s in SIDES}

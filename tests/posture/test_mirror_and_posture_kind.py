@@ -7,15 +7,14 @@ import pytest
 
 from services.posture.features import (
     ACTION_LIMIT,
-    arm_joints,
     mirror_arm_state,
-    mirror_signs,
     mirror_state,
     posture_action,
     state,
 )
 from services.posture.policy import PolicyError, PosturePolicy, _layers, mlp, save_policy
 from services.posture.train import Dataset
+from shared.mirror import arm_joints, mirror_signs
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
 from tests.posture.policy_files import policy_meta, random_weights, write_random_policy

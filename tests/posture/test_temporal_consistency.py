@@ -19,7 +19,7 @@ def _rollout(label_ok: np.ndarray, first: float) -> Rollout:
 
 
 def test_successors_follow_ticks_of_one_rollout_through_gaps_mirroring_and_rounds(robot14):
-    from services.posture.features import mirror_signs
+    from shared.mirror import mirror_signs
 
     ok = np.ones((5, 2), dtype=bool)
     ok[2, 0] = False  # the left arm's tick 2 has no label: ticks 1 and 3 are not consecutive
