@@ -13,6 +13,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from services.evaluation.goals import clip_goals, goals_lines, goals_summary, load_bars
 from services.evaluation.metrics import (
     REACHABLE_TOL,
     compare,
@@ -222,6 +223,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(feedforward) or every tick the wrist level misses (residual) (SolverConfig.saturation_trigger; "
         "default: SolverConfig's)",
     )
+    p.add_argument(
+        "--goals",
+        default=None,
+        metavar="FILE",
+        help="TOML file whose [bars] table sets other bars for the fidelity goals each clip is checked against "
+        "(key = number; the keys are in the JSON's summary.goals; default: issue 12's)",
+    )
     p.add_argument("--json", required=True, help="output JSON path")
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
@@ -252,6 +260,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     if not args.clips and not demos:
         raise SystemExit("mimic eval: give at least one clip or --demo NAME")
     algos, solver, wqp_weights, retarget = _settings(args)
+    try:
+        bars = load_bars(args.goals) if getattr(args, "goals", None) else {}
+    except ValueError as exc:
+        raise SystemExit(f"mimic eval: {exc}") from None
     profile = load_profile()
     if getattr(args, "max_joint_velocity", None) is not None:
         profile = replace(profile, max_joint_velocity=args.max_joint_velocity)
@@ -334,6 +346,9 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                 failed.append({"clip": clip.name, "algo": label, "error": f"{type(exc).__name__}: {exc}"})
             bar.update(1)
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
+        goals = clip_goals(entry["algos"], bars)
+        if goals is not None:
+            entry["goals"] = goals
         clips_out.append(entry)
     bar.close()
     if not clips_out:
@@ -345,12 +360,15 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         "summary": summarise(clips_out) | {"hqp_vs": _compare_summary(clips_out)} | _adjustment_summary(clips_out),
         "paper": PAPER,
     }
+    if any("goals" in c for c in clips_out):
+        result["summary"]["goals"] = goals_summary({c["clip"]: c.get("goals") for c in clips_out})
     result["settings"] = _settings_json(
         args, algos, solver, wqp_weights, retarget, robot.nq, robot.profile.max_joint_velocity
     )
     result["settings"] |= {
         "skeleton_map": skeleton_map,
         "clip_variant": variant,
+        "goals_file": getattr(args, "goals", None),
         "ik_check": {"wrist_tol_m": IK_TOL, "pair_tol_m": PAIR_TOL} if ik_check else None,
     }
     return result, traces
@@ -483,6 +501,9 @@ def main(args: argparse.Namespace) -> int:
 
         write_report(result, traces, Path(args.plots))
     sys.stdout.write(json.dumps(result["summary"], indent=2) + "\n")
+    if "goals" in result["summary"]:
+        for line in goals_lines(result["summary"]["goals"]):
+            log.info("%s", line)
     log.info("wrote %s in %.1f s", out, result["settings"]["wall_s"])
     if result["failed"]:
         log.error("%d run(s) failed; the others are in %s, the failures under 'failed'", len(result["failed"]), out)

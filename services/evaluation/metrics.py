@@ -25,6 +25,8 @@ SUMMED = (
 )
 #: Wrist error [m] above which a tick on a reachable target counts towards ``stuck_s``.
 STUCK_ERR = 0.02
+#: How far [cm] the HQP's elbow mean may be above another algorithm's and still count as not worse (issue 12).
+ELBOW_TIE_CM = 0.05
 
 
 def _stats(v: np.ndarray) -> dict:
@@ -349,7 +351,8 @@ def trace_metrics(
 
 
 def compare(entry: dict, reference: str) -> dict:
-    """Per clip: ``reference`` (the HQP) beside every other algorithm, on the error means and p99s [cm, deg]."""
+    """Per clip: ``reference`` (the HQP) beside every other algorithm, on the error means and p99s [cm, deg], and
+    whether its elbow mean is at most :data:`ELBOW_TIE_CM` above the other's and its wrist mean below."""
     ref = entry["algos"].get(reference)
     out: dict = {}
     if ref is None:
@@ -364,7 +367,7 @@ def compare(entry: dict, reference: str) -> dict:
                 a, b = ref[k].get(stat), m[k].get(stat)
                 row[f"{k}_{stat}"] = {reference: a, algo: b}
         e_ref, e_alg = ref["elbow_err_cm"]["mean"], m["elbow_err_cm"]["mean"]
-        row["hqp_elbow_better"] = bool(e_ref is not None and e_alg is not None and e_ref <= e_alg + 0.05)
+        row["hqp_elbow_better"] = bool(e_ref is not None and e_alg is not None and e_ref <= e_alg + ELBOW_TIE_CM)
         w_ref, w_alg = ref["wrist_err_cm"]["mean"], m["wrist_err_cm"]["mean"]
         row["hqp_wrist_better"] = bool(w_ref is not None and w_alg is not None and w_ref < w_alg)
         out[algo] = row

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+from services.evaluation.goals import GOAL_KEYS, JUDGED, clip_goals
+
 #: Compared metrics: (name in the report, statistic or None for a number, unit, the smallest change [unit] that
 #: counts as a move, so that the threshold's share of a near-zero value does not). All are lower-is-better.
 METRICS: tuple[tuple[str, str | None, str, float], ...] = (
@@ -90,7 +92,8 @@ def diff_runs(base: dict, new: dict, algos: list[str] | None = None, threshold: 
         ``clips``: clip -> algorithm -> metric key -> [base, new, new - base] (None where either run lacks it);
         ``moved``: algorithm -> headline metric -> {"better": [clips], "worse": [clips]};
         ``means``: algorithm -> metric key -> [base, new], plain means over the clips both runs have with a value;
-        ``only_base`` / ``only_new``: clips one run has; ``settings``: :func:`settings_diff`.
+        ``only_base`` / ``only_new``: clips one run has; ``settings``: :func:`settings_diff`; ``goals``:
+        :func:`goals_diff` (None unless both runs have the judged algorithm on a shared clip).
 
     Raises:
         RunDiffError: a report is not an eval report, they share no clip, or an asked algorithm is missing.
@@ -132,6 +135,36 @@ def diff_runs(base: dict, new: dict, algos: list[str] | None = None, threshold: 
         "only_new": [c for c in b if c not in a],
         "settings": settings_diff(base, new),
         "threshold": threshold,
+        "goals": goals_diff({c: a[c] for c in shared}, {c: b[c] for c in shared}),
+    }
+
+
+def goals_diff(base: dict[str, dict], new: dict[str, dict]) -> dict | None:
+    """The fidelity goals (:mod:`.goals`, default bars, recomputed from each run's metrics, so reports written
+    before the goals existed compare too) on the clips both runs judged: how many meet every goal before and after,
+    and per goal the clips it is newly met and newly missed on.
+
+    Args:
+        base, new: clip -> its ``algos`` block, the same clips in both.
+    """
+    before = {c: clip_goals(algos) for c, algos in base.items()}
+    after = {c: clip_goals(new[c]) for c in base}
+    both = [c for c in base if before[c] is not None and after[c] is not None]
+    if not both:
+        return None
+    met: dict[str, list[str]] = {}
+    missed: dict[str, list[str]] = {}
+    for c in both:
+        for key in GOAL_KEYS:
+            u, v = before[c]["checks"].get(key), after[c]["checks"].get(key)
+            if u is not None and v is not None and u["met"] != v["met"]:
+                (met if v["met"] else missed).setdefault(key, []).append(c)
+    return {
+        "algo": JUDGED,
+        "clips": len(both),
+        "all_met": [sum(before[c]["all_met"] for c in both), sum(after[c]["all_met"] for c in both)],
+        "newly_met": met,
+        "newly_missed": missed,
     }
 
 
@@ -157,6 +190,13 @@ def format_diff(diff: dict) -> str:
     for key in ("only_base", "only_new"):
         if diff[key]:
             lines.append(f"{key.replace('_', ' in ')}: {', '.join(diff[key])}")
+    g = diff.get("goals")
+    if g:
+        u, v = g["all_met"]
+        lines.append(f"fidelity goals ({g['algo']}): every goal met on {u} -> {v} of {g['clips']} shared clips")
+        for label, key in (("newly met", "newly_met"), ("newly missed", "newly_missed")):
+            for goal, clips in g[key].items():
+                lines.append(f"  {label}: {goal} on {', '.join(clips)}")
     for x, ms in diff["means"].items():
         lines.append(f"{x}: means over clips, base -> new")
         for name, stat, unit, _ in METRICS:

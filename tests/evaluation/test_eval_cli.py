@@ -134,3 +134,34 @@ def test_held_out_variants_mirror_and_speed(short_clip, tmp_path, capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err.strip().splitlines()[-1]
         assert err.startswith("mimic eval: error: argument --speed:") and repr(bad) in err, err
+
+
+def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
+    """Each clip is checked against the fidelity goals on the figures of its own run (a --goals file moves a bar),
+    the summary counts them, and --plots writes report.md with them (it raised KeyError on the summary's
+    cross-algorithm blocks from commit ea4f084 to session 22). A bad goals file is a one-line error."""
+    bars = tmp_path / "bars.toml"
+    bars.write_text("[bars]\nwrist_mean_cm = 0.001\n")
+    plots = tmp_path / "plots"
+    run = _eval(short_clip, tmp_path, "--algos", "hqp-nullspace,wqp", "--goals", str(bars), "--plots", str(plots))
+    capsys.readouterr()
+    clip = run["clips"][0]
+    hqp, wqp = clip["algos"]["hqp-nullspace"], clip["algos"]["wqp"]
+    checks = clip["goals"]["checks"]
+    assert checks["wrist_mean_cm"]["value"] == hqp["wrist_err_cm"]["mean"] > 0.001  # measured 0.014 cm
+    assert checks["wrist_mean_cm"] == checks["wrist_mean_cm"] | {"bar": 0.001, "met": False}
+    behind = hqp["elbow_err_cm"]["mean"] - wqp["elbow_err_cm"]["mean"]
+    assert checks["elbow_behind_wqp_cm"]["value"] == pytest.approx(behind)
+    assert checks["elbow_p99_cm"]["bar"] == 6.0 and checks["stuck_s"]["value"] == hqp["stuck_s"]
+    assert "wrist_mean_cm" in clip["goals"]["unmet"] and "elbow_behind_mink_cm" in clip["goals"]["not_judged"]
+    s = run["summary"]["goals"]
+    assert (s["clips"], s["all_met"]) == (1, 0)
+    assert s["goals"]["wrist_mean_cm"] == {"judged": 1, "met": 0, "unmet_clips": [clip["clip"]]}
+    report = (plots / "report.md").read_text()
+    assert "| hqp-nullspace |" in report and "| wqp |" in report
+    assert "## Fidelity goals (hqp-nullspace): 0 of 1 clips meet every one" in report
+    assert "| wrist_mean_cm | 0 of 1 |" in report
+    bars.write_text("[bars]\nwrist_mean = 0.2\n")
+    with pytest.raises(SystemExit) as exc:
+        mimic_main(["eval", str(short_clip), "--goals", str(bars), "--json", str(tmp_path / "x.json")])
+    assert str(exc.value).startswith("mimic eval: goals file") and "unknown goals ['wrist_mean']" in str(exc.value)

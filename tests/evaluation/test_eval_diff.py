@@ -7,8 +7,9 @@ import json
 import pytest
 
 from services.cli import main as mimic_main
-from services.evaluation.run_diff import RunDiffError, diff_runs
+from services.evaluation.run_diff import RunDiffError, diff_runs, format_diff
 from services.ingest.bvh import parse_bvh, write_bvh
+from tests.support.goal_metrics import errors, hqp_meeting_every_goal, peer
 
 CLIP = "dataset-1_bye_normal_001.bvh"
 FRAMES = 45  # 1.5 s at 30 fps
@@ -112,3 +113,30 @@ def test_unreadable_reports_are_one_line_errors(two_runs, tmp_path, capsys):
         assert mimic_main(["eval-diff", *args]) == 2
         out = capsys.readouterr()
         assert out.out == "" and len(out.err.strip().splitlines()) == 1 and message in out.err
+
+
+def test_the_fidelity_goals_before_and_after():
+    """The goals are recomputed from each run's metrics (reports written before the goals existed compare too): every
+    goal met on 2 -> 1 of the shared clips, with the goal newly met and the ones newly missed named per clip."""
+    base = _report(
+        {
+            "a": {"hqp-nullspace": hqp_meeting_every_goal(), "wqp": peer(0.08, 0.45)},
+            "b": {"hqp-nullspace": hqp_meeting_every_goal(stuck_s=0.4), "wqp": peer(0.08, 0.45)},
+            "c": {"hqp-nullspace": hqp_meeting_every_goal(), "wqp": peer(0.08, 0.45)},
+        }
+    )
+    new = _report(
+        {
+            "a": {"hqp-nullspace": hqp_meeting_every_goal(stuck_s=0.2), "wqp": peer(0.08, 0.30)},
+            "b": {"hqp-nullspace": hqp_meeting_every_goal(), "wqp": peer(0.08, 0.45)},
+            "c": {"hqp-nullspace": hqp_meeting_every_goal(wrist_err_cm=errors(0.05, 1.1)), "wqp": peer(0.08, 0.45)},
+        }
+    )
+    g = diff_runs(base, new)["goals"]
+    assert g["clips"] == 3 and g["all_met"] == [2, 1]
+    assert g["newly_met"] == {"stuck_s": ["b"]}
+    assert g["newly_missed"] == {"stuck_s": ["a"], "wrist_p99_cm": ["c"], "elbow_behind_wqp_cm": ["a"]}
+    text = format_diff(diff_runs(base, new))
+    assert "fidelity goals (hqp-nullspace): every goal met on 2 -> 1 of 3 shared clips" in text
+    assert "  newly missed: stuck_s on a" in text
+    assert diff_runs(_report({"a": {"wqp": {}}}), _report({"a": {"wqp": {}}}))["goals"] is None  # no HQP: none

@@ -1,0 +1,155 @@
+"""The fidelity bar: which of issue 12's goals each clip of a ``mimic eval`` run meets.
+
+The goals are on the strict HQP (``hqp-nullspace``, the shipped solver) with the kinematic errors of the
+commanded joints on all ticks, the safety figures of its run (the MuJoCo run's contacts and clearance when the sim
+ran) and, where the run has them, the peers' errors on the same targets. Each goal is data (:data:`GOALS`): a key,
+what it reads from the clip's metrics, a comparison and a bar; ``mimic eval --goals FILE`` sets other bars (a TOML
+table ``[bars]`` of key = value). A goal whose figure the run did not produce (no mink in ``--algos``, no
+orientation in a marker clip's targets) is not judged, and is listed as such.
+"""
+
+from __future__ import annotations
+
+import operator
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from services.evaluation.metrics import ELBOW_TIE_CM
+from services.evaluation.runner import REFERENCE_ALGO
+
+#: The algorithm the goals judge: the shipped strict HQP.
+JUDGED = REFERENCE_ALGO
+_OPS: dict[str, Callable[[float, float], bool]] = {"<=": operator.le, ">=": operator.ge, "<": operator.lt}
+
+
+@dataclass(frozen=True)
+class Goal:
+    """One goal: ``value(algos) op bar``.
+
+    Attributes:
+        key: its name in the JSON and in ``--goals`` files.
+        text: what it says, with its unit.
+        bar: the default bar.
+        op: ``"<="``, ``">="`` or ``"<"`` (value against bar).
+        value: the clip's ``algos`` block (algorithm -> metrics) -> the figure, or None when the run has none.
+    """
+
+    key: str
+    text: str
+    bar: float
+    op: str
+    value: Callable[[dict], float | None]
+
+
+def _stat(metric: str, stat: str) -> Callable[[dict], float | None]:
+    return lambda algos: (algos[JUDGED].get(metric) or {}).get(stat)
+
+
+def _scalar(metric: str) -> Callable[[dict], float | None]:
+    return lambda algos: algos[JUDGED].get(metric)
+
+
+def _behind(peer: str, metric: str) -> Callable[[dict], float | None]:
+    """The judged algorithm's mean of ``metric`` minus the peer's [cm] (None without the peer)."""
+
+    def value(algos: dict) -> float | None:
+        ours = (algos[JUDGED].get(metric) or {}).get("mean")
+        theirs = (algos.get(peer, {}).get(metric) or {}).get("mean")
+        return None if ours is None or theirs is None else ours - theirs
+
+    return value
+
+
+GOALS: tuple[Goal, ...] = (
+    Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean")),
+    Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99")),
+    Goal("elbow_mean_cm", "elbow error mean [cm]", 1.5, "<=", _stat("elbow_err_cm", "mean")),
+    Goal("elbow_p99_cm", "elbow error p99 [cm]", 6.0, "<=", _stat("elbow_err_cm", "p99")),
+    Goal("wrist_rotation_p99_deg", "wrist rotation error p99 [deg]", 10.0, "<=", _stat("wrist_rot_err_deg", "p99")),
+    Goal("stuck_s", "longest time 2 cm off a reachable wrist target [s]", 0.1, "<=", _scalar("stuck_s")),
+    Goal("reachable_fraction", "wrist targets an IK check reaches", 0.995, ">=", _scalar("reachable_fraction")),
+    Goal("limit_violations", "commands past a position or velocity limit", 0, "<=", _scalar("limit_violations")),
+    Goal("acceleration_violations", "commands past an acceleration limit", 0, "<=", _scalar("acceleration_violations")),
+    Goal("self_collisions", "steps with an arm in penetration", 0, "<=", _scalar("self_collisions")),
+    Goal("min_clearance_cm", "smallest arm clearance [cm]", 1.0, ">=", _scalar("min_clearance_cm")),
+    Goal("elbow_behind_wqp_cm", "elbow mean minus the WQP's [cm]", ELBOW_TIE_CM, "<=", _behind("wqp", "elbow_err_cm")),
+    Goal("elbow_behind_mink_cm", "elbow mean minus mink's [cm]", ELBOW_TIE_CM, "<=", _behind("mink", "elbow_err_cm")),
+    Goal("wrist_behind_mink_cm", "wrist mean minus mink's [cm]", 0.0, "<", _behind("mink", "wrist_err_cm")),
+)
+GOAL_KEYS = tuple(g.key for g in GOALS)
+
+
+def load_bars(path: str | Path) -> dict[str, float]:
+    """Bars from a TOML file's ``[bars]`` table (key = number; keys of :data:`GOALS`).
+
+    Raises:
+        ValueError: unreadable file, no ``[bars]`` table, an unknown key or a bar that is not a finite number;
+            one line that says which.
+    """
+    try:
+        raw = tomllib.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"goals file {str(path)!r}: {exc}") from None
+    bars = raw.get("bars")
+    if not isinstance(bars, dict) or not bars:
+        raise ValueError(f"goals file {str(path)!r}: needs a [bars] table of goal = bar; goals: {list(GOAL_KEYS)}")
+    unknown = sorted(set(bars) - set(GOAL_KEYS))
+    if unknown:
+        raise ValueError(f"goals file {str(path)!r}: unknown goals {unknown}; known: {list(GOAL_KEYS)}")
+    bad = {k: v for k, v in bars.items() if isinstance(v, bool) or not isinstance(v, int | float) or v != v}
+    if bad:
+        raise ValueError(f"goals file {str(path)!r}: bars must be numbers, got {bad}")
+    return {k: float(v) for k, v in bars.items()}
+
+
+def clip_goals(algos: dict, bars: dict[str, float] | None = None) -> dict | None:
+    """The goals of one clip from its ``algos`` block (None when :data:`JUDGED` did not run on it).
+
+    Returns:
+        ``{"algo", "checks": {key: {"value", "bar", "op", "met"}}, "unmet": [keys], "not_judged": [keys],
+        "all_met"}``; ``all_met`` is over the judged goals.
+    """
+    if JUDGED not in algos:
+        return None
+    bars = bars or {}
+    checks, unmet, not_judged = {}, [], []
+    for g in GOALS:
+        v = g.value(algos)
+        if v is None:
+            not_judged.append(g.key)
+            continue
+        bar = bars.get(g.key, g.bar)
+        met = bool(_OPS[g.op](v, bar))
+        checks[g.key] = {"value": float(v), "bar": bar, "op": g.op, "met": met}
+        if not met:
+            unmet.append(g.key)
+    return {"algo": JUDGED, "checks": checks, "unmet": unmet, "not_judged": not_judged, "all_met": not unmet}
+
+
+def goals_summary(per_clip: dict[str, dict]) -> dict:
+    """Over clips (name -> :func:`clip_goals` result): how many meet every judged goal, and per goal how many
+    clips it was judged on and met on, with the names of those it was not met on."""
+    rows = {name: g for name, g in per_clip.items() if g is not None}
+    per_goal = {}
+    for key in GOAL_KEYS:
+        judged = [name for name, g in rows.items() if key in g["checks"]]
+        missed = [name for name in judged if not rows[name]["checks"][key]["met"]]
+        if judged:
+            per_goal[key] = {"judged": len(judged), "met": len(judged) - len(missed), "unmet_clips": missed}
+    return {
+        "algo": JUDGED,
+        "clips": len(rows),
+        "all_met": sum(g["all_met"] for g in rows.values()),
+        "goals": per_goal,
+    }
+
+
+def goals_lines(summary: dict) -> list[str]:
+    """A few lines for the log: clips meeting every goal, then each goal missed somewhere and on which clips."""
+    out = [f"fidelity goals ({summary['algo']}): {summary['all_met']} of {summary['clips']} clips meet every one"]
+    for key, g in summary["goals"].items():
+        if g["unmet_clips"]:
+            out.append(f"  {key}: met on {g['met']} of {g['judged']}; not on {', '.join(g['unmet_clips'])}")
+    return out
