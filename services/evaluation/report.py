@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from services.evaluation.goals import GOALS
 from services.evaluation.runner import Trace
 from shared.targets import SIDES, elbow_of, wrist_of
 
@@ -115,9 +116,13 @@ def _goals_section(result: dict) -> list[str]:
     if not g:
         return []
     lines = [f"## Fidelity goals ({g['algo']}): {g['all_met']} of {g['clips']} clips meet every one", ""]
-    lines += ["| goal | met on | not met on |", "|---|---|---|"]
+    bars = {k: check["bar"] for c in result["clips"] for k, check in c.get("goals", {}).get("checks", {}).items()}
+    text = {goal.key: goal.text for goal in GOALS}
+    ops = {goal.key: goal.op for goal in GOALS}
+    lines += ["| goal | what | met on | not met on |", "|---|---|---|---|"]
     for key, row in g["goals"].items():
-        lines.append(f"| {key} | {row['met']} of {row['judged']} | {', '.join(row['unmet_clips']) or '-'} |")
+        missed = ", ".join(row["unmet_clips"]) or "-"
+        lines.append(f"| {key} | {text[key]} {ops[key]} {bars[key]:g} | {row['met']} of {row['judged']} | {missed} |")
     return [*lines, ""]
 
 

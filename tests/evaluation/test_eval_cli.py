@@ -160,7 +160,8 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     report = (plots / "report.md").read_text()
     assert "| hqp-nullspace |" in report and "| wqp |" in report
     assert "## Fidelity goals (hqp-nullspace): 0 of 1 clips meet every one" in report
-    assert "| wrist_mean_cm | 0 of 1 |" in report
+    assert "| wrist_mean_cm | wrist error mean [cm] <= 0.001 | 0 of 1 |" in report  # the bar of the run
+    assert "| elbow_p99_cm | elbow error p99 [cm] <= 6 | 1 of 1 |" in report
     bars.write_text("[bars]\nwrist_mean = 0.2\n")
     with pytest.raises(SystemExit) as exc:
         mimic_main(["eval", str(short_clip), "--goals", str(bars), "--json", str(tmp_path / "x.json")])
