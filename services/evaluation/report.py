@@ -110,19 +110,19 @@ def _fmt(d: dict | None, key: str = "mean") -> str:
 
 
 def _goals_section(result: dict) -> list[str]:
-    """The fidelity goals (``summary.goals``, :mod:`.goals`) as Markdown: per goal the clips it was met on, then
-    each clip's unmet goals; nothing when the run judged none."""
+    """The fidelity goals (``summary.goals``, :mod:`.goals`) as Markdown: per goal what it asks (with the bar the run
+    used), the clips it was met on and those it was not; nothing when the run judged none."""
     g = result["summary"].get("goals")
     if not g:
         return []
     lines = [f"## Fidelity goals ({g['algo']}): {g['all_met']} of {g['clips']} clips meet every one", ""]
     bars = {k: check["bar"] for c in result["clips"] for k, check in c.get("goals", {}).get("checks", {}).items()}
-    text = {goal.key: goal.text for goal in GOALS}
-    ops = {goal.key: goal.op for goal in GOALS}
+    goals = {goal.key: goal for goal in GOALS}
     lines += ["| goal | what | met on | not met on |", "|---|---|---|---|"]
     for key, row in g["goals"].items():
+        what = f"{goals[key].text} {goals[key].op} {bars[key]:g}"
         missed = ", ".join(row["unmet_clips"]) or "-"
-        lines.append(f"| {key} | {text[key]} {ops[key]} {bars[key]:g} | {row['met']} of {row['judged']} | {missed} |")
+        lines.append(f"| {key} | {what} | {row['met']} of {row['judged']} | {missed} |")
     return [*lines, ""]
 
 

@@ -28,6 +28,16 @@ def _eval(clip, tmp_path, *flags) -> dict:
     return json.loads(out.read_text())
 
 
+def _usage_errors(clip, tmp_path, capsys, flag: str, values: tuple[str, ...]) -> None:
+    """Each of ``values`` given to ``flag`` is a one-line usage error (exit 2) naming the flag and the value."""
+    for bad in values:
+        with pytest.raises(SystemExit) as exc:
+            mimic_main(["eval", str(clip), flag, bad, "--json", str(tmp_path / "x.json")])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith(f"mimic eval: error: argument {flag}:") and repr(bad) in err, err
+
+
 @pytest.mark.slow
 def test_paper_flag_applies_the_paper_setup(short_clip, tmp_path, capsys):
     paper = _eval(short_clip, tmp_path, "--paper")
@@ -78,12 +88,7 @@ def test_max_joint_velocity_caps_every_joint_of_the_run(short_clip, tmp_path, ca
     ws = slow["summary"]["hqp-nullspace"]["wrist_err_cm"]["mean"]
     wd = shipped["summary"]["hqp-nullspace"]["wrist_err_cm"]["mean"]
     assert ws > 20 * wd, (ws, wd)  # measured 0.87 against 0.015 cm: the wave outruns 1 rad/s joints
-    for bad in ("0", "-4", "nan", "inf", "fast"):
-        with pytest.raises(SystemExit) as exc:
-            mimic_main(["eval", str(short_clip), "--max-joint-velocity", bad, "--json", str(tmp_path / "x.json")])
-        assert exc.value.code == 2
-        err = capsys.readouterr().err.strip().splitlines()[-1]
-        assert err.startswith("mimic eval: error: argument --max-joint-velocity:") and repr(bad) in err, err
+    _usage_errors(short_clip, tmp_path, capsys, "--max-joint-velocity", ("0", "-4", "nan", "inf", "fast"))
 
 
 def test_demo_motions_are_evaluated_beside_clips_or_alone(short_clip, tmp_path, capsys):
@@ -128,12 +133,7 @@ def test_held_out_variants_mirror_and_speed(short_clip, tmp_path, capsys):
     # measured: wrist 0.0139 / 0.0138 cm, elbow 0.1997 / 0.1995 cm (the hands stay off the asymmetric torso)
     assert w["mirror"] == pytest.approx(w["shipped"], rel=0.02) and e["mirror"] == pytest.approx(e["shipped"], rel=0.02)
     assert w["fast"] > 1.8 * w["shipped"] and e["fast"] > 1.4 * e["shipped"], (w, e)  # measured 2.4x and 1.7x
-    for bad in ("0", "-1", "nan", "quick"):
-        with pytest.raises(SystemExit) as exc:
-            mimic_main(["eval", str(short_clip), "--speed", bad, "--json", str(tmp_path / "x.json")])
-        assert exc.value.code == 2
-        err = capsys.readouterr().err.strip().splitlines()[-1]
-        assert err.startswith("mimic eval: error: argument --speed:") and repr(bad) in err, err
+    _usage_errors(short_clip, tmp_path, capsys, "--speed", ("0", "-1", "nan", "quick"))
 
 
 def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
