@@ -13,6 +13,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from services.evaluation.causes import explain_misses
 from services.evaluation.goals import clip_goals, goals_lines, goals_summary, load_bars
 from services.evaluation.metrics import (
     REACHABLE_TOL,
@@ -348,6 +349,9 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         goals = clip_goals(entry["algos"], bars)
         if goals is not None:
+            judged = traces.get((clip.name, REFERENCE_ALGO))
+            if judged is not None:  # what held the arms on the ticks over each missed goal's bar
+                explain_misses(goals, judged, robot, report)
             entry["goals"] = goals
         clips_out.append(entry)
     bar.close()

@@ -34,6 +34,8 @@ class Goal:
         bar: the default bar.
         op: ``"<="``, ``">="`` or ``"<"`` (value against bar).
         value: the clip's ``algos`` block (algorithm -> metrics) -> the figure, or None when the run has none.
+        ticks: the per-tick figure whose ticks over the bar a miss is explained by (``causes.FIGURES``), or None
+            (a goal on counts or on a peer's figures).
     """
 
     key: str
@@ -41,6 +43,7 @@ class Goal:
     bar: float
     op: str
     value: Callable[[dict], float | None]
+    ticks: str | None = None
 
 
 def _stat(metric: str, stat: str) -> Callable[[dict], float | None]:
@@ -63,12 +66,19 @@ def _behind(peer: str, metric: str) -> Callable[[dict], float | None]:
 
 
 GOALS: tuple[Goal, ...] = (
-    Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean")),
-    Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99")),
-    Goal("elbow_mean_cm", "elbow error mean [cm]", 1.5, "<=", _stat("elbow_err_cm", "mean")),
-    Goal("elbow_p99_cm", "elbow error p99 [cm]", 6.0, "<=", _stat("elbow_err_cm", "p99")),
-    Goal("wrist_rotation_p99_deg", "wrist rotation error p99 [deg]", 10.0, "<=", _stat("wrist_rot_err_deg", "p99")),
-    Goal("stuck_s", "longest time 2 cm off a reachable wrist target [s]", 0.1, "<=", _scalar("stuck_s")),
+    Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean"), "wrist_cm"),
+    Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99"), "wrist_cm"),
+    Goal("elbow_mean_cm", "elbow error mean [cm]", 1.5, "<=", _stat("elbow_err_cm", "mean"), "elbow_cm"),
+    Goal("elbow_p99_cm", "elbow error p99 [cm]", 6.0, "<=", _stat("elbow_err_cm", "p99"), "elbow_cm"),
+    Goal(
+        "wrist_rotation_p99_deg",
+        "wrist rotation error p99 [deg]",
+        10.0,
+        "<=",
+        _stat("wrist_rot_err_deg", "p99"),
+        "rotation_deg",
+    ),
+    Goal("stuck_s", "longest time 2 cm off a reachable wrist target [s]", 0.1, "<=", _scalar("stuck_s"), "stuck"),
     Goal("reachable_fraction", "wrist targets an IK check reaches", 0.995, ">=", _scalar("reachable_fraction")),
     Goal("limit_violations", "commands past a position or velocity limit", 0, "<=", _scalar("limit_violations")),
     Goal("acceleration_violations", "commands past an acceleration limit", 0, "<=", _scalar("acceleration_violations")),
@@ -138,6 +148,9 @@ def goals_summary(per_clip: dict[str, dict]) -> dict:
         missed = [name for name in judged if not rows[name]["checks"][key]["met"]]
         if judged:
             per_goal[key] = {"judged": len(judged), "met": len(judged) - len(missed), "unmet_clips": missed}
+            why = {name: _main_cause(rows[name]["checks"][key]) for name in missed}
+            if any(why.values()):  # the missed clips' main causes (causes.explain_misses), where explained
+                per_goal[key]["main_causes"] = {name: w for name, w in why.items() if w}
     return {
         "algo": JUDGED,
         "clips": len(rows),
@@ -151,5 +164,21 @@ def goals_lines(summary: dict) -> list[str]:
     out = [f"fidelity goals ({summary['algo']}): {summary['all_met']} of {summary['clips']} clips meet every one"]
     for key, g in summary["goals"].items():
         if g["unmet_clips"]:
-            out.append(f"  {key}: met on {g['met']} of {g['judged']}; not on {', '.join(g['unmet_clips'])}")
+            out.append(f"  {key}: met on {g['met']} of {g['judged']}; not on {', '.join(unmet_labels(g))}")
     return out
+
+
+def unmet_labels(row: dict) -> list[str]:
+    """The clips a goal was missed on (a ``summary.goals.goals`` row), each with its main cause and that cause's
+    share of the ticks over the bar where the miss was explained: ``"clip [self_collision 83 %]"``."""
+    why = row.get("main_causes", {})
+    return [f"{c} [{why[c]['cause']} {100 * why[c]['share']:.0f} %]" if c in why else c for c in row["unmet_clips"]]
+
+
+def _main_cause(check: dict) -> dict | None:
+    """``{"cause", "share"}``: the main cause of a missed goal and its share of the ticks over the bar (None when
+    the miss has no explanation)."""
+    why = check.get("causes")
+    if not why or why["main"] is None:
+        return None
+    return {"cause": why["main"], "share": why["shares"][why["main"]]}

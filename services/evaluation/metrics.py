@@ -105,21 +105,22 @@ def operator_errors(trace: Trace, plain: list) -> dict:
     }
 
 
-def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
-    """side -> (K,) bool: the wrist target the tick tracks (its frame's) passed the IK check."""
+def per_tick(trace: Trace, report: ReachabilityReport, per_frame: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """side -> (K,) bool: a per-frame flag of the report (side -> (F,) bool) on each tick, from the frame the tick
+    tracks (False on ticks tracking a frame the report did not check)."""
     index = {int(s): k for k, s in enumerate(report.seq)}
     rows = np.array([index.get(int(s), -1) for s in trace.seq])
-    out = {}
-    for side, ok in report.reachable().items():
-        out[side] = np.where(rows >= 0, ok[np.maximum(rows, 0)], False)
-    return out
+    return {side: np.where(rows >= 0, v[np.maximum(rows, 0)], False) for side, v in per_frame.items()}
+
+
+def tick_reachable(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
+    """side -> (K,) bool: the wrist target the tick tracks (its frame's) passed the IK check."""
+    return per_tick(trace, report, report.reachable())
 
 
 def tick_inside(trace: Trace, report: ReachabilityReport) -> dict[str, np.ndarray]:
     """side -> (K,) bool: the wrist target the tick tracks (its frame's) puts the hand inside the body."""
-    index = {int(s): k for k, s in enumerate(report.seq)}
-    rows = np.array([index.get(int(s), -1) for s in trace.seq])
-    return {side: np.where(rows >= 0, v[np.maximum(rows, 0)], False) for side, v in report.inside().items()}
+    return per_tick(trace, report, report.inside())
 
 
 def longest_run(flags: np.ndarray) -> int:

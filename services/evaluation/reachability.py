@@ -169,7 +169,15 @@ class ReachabilityReport:
     def speed_feasible_fraction(self) -> float | None:
         """Share of frames (both arms) whose IK posture change stays within the joint speed cap."""
         vals = np.concatenate([v[np.isfinite(v)] for v in self.speed.values()]) if self.speed else np.zeros(0)
-        return float(np.mean(vals <= self.vmax * (1 + 1e-6))) if vals.size else None
+        return float(np.mean(~self._over_speed(vals))) if vals.size else None
+
+    def too_fast(self) -> dict[str, np.ndarray]:
+        """side -> (F,) bool, the arm's IK posture change to this frame is beyond the joint speed cap (reachable in
+        place, not in time; False where unknown)."""
+        return {s: self._over_speed(np.nan_to_num(v, nan=0.0)) for s, v in self.speed.items()}
+
+    def _over_speed(self, speed: np.ndarray) -> np.ndarray:
+        return speed > self.vmax * (1 + 1e-6)
 
 
 def trunk_for(robot: RobotModel) -> TrunkClearance | None:

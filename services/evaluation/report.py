@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from services.evaluation.goals import GOALS
+from services.evaluation.goals import GOALS, unmet_labels
 from services.evaluation.runner import Trace
 from shared.targets import SIDES, elbow_of, wrist_of
 
@@ -111,7 +111,8 @@ def _fmt(d: dict | None, key: str = "mean") -> str:
 
 def _goals_section(result: dict) -> list[str]:
     """The fidelity goals (``summary.goals``, :mod:`.goals`) as Markdown: per goal what it asks (with the bar the run
-    used), the clips it was met on and those it was not; nothing when the run judged none."""
+    used), the clips it was met on and those it was not, with the main cause of each miss (:mod:`.causes`); nothing
+    when the run judged none."""
     g = result["summary"].get("goals")
     if not g:
         return []
@@ -121,7 +122,7 @@ def _goals_section(result: dict) -> list[str]:
     lines += ["| goal | what | met on | not met on |", "|---|---|---|---|"]
     for key, row in g["goals"].items():
         what = f"{goals[key].text} {goals[key].op} {bars[key]:g}"
-        missed = ", ".join(row["unmet_clips"]) or "-"
+        missed = ", ".join(unmet_labels(row)) or "-"
         lines.append(f"| {key} | {what} | {row['met']} of {row['judged']} | {missed} |")
     return [*lines, ""]
 

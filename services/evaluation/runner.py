@@ -67,6 +67,9 @@ class Trace:
         frame_tick: (F,) index of the scored tick each frame arrived on; frame_seq: (F,) its seq;
             frame_p: target -> (F, 3) the frame's own target position [m] (no extrapolation); frame_ok:
             target -> (F,) valid.
+        holds: (K, n) int8, what held each joint's raw velocity on each tick (``SolverCore.tick_holds`` codes:
+            free, acceleration band, speed cap, braking to a stop); collision_held: (K, n) bool, the joints a
+            binding self-collision damper row acted on. Both empty for a peer without them (mink).
         policy_p: elbow -> (K, 3) [m] the elbow target an elbow-kind posture policy gave that arm's elbow task,
             advanced to the instant the tick's command is for (NaN on ticks the arm was not policy-driven);
             empty when no tick was.
@@ -97,6 +100,8 @@ class Trace:
     dt: float = 0.002
     counts: dict[str, int] = field(default_factory=dict)
     policy_p: dict[str, np.ndarray] = field(default_factory=dict)
+    holds: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int8))
+    collision_held: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
 
 def clip_targets(clip: Clip, retargeter: Retargeter) -> list[TaskTargets]:
@@ -232,6 +237,8 @@ class _Recorder:
         self.frame_p = {n: [] for n in TARGET_NAMES}
         self.frame_ok = {n: [] for n in TARGET_NAMES}
         self.policy_p: dict[str, list] = {n: [] for n in ELBOWS}
+        #: the solver's own account of what held each joint, per tick (a peer without ``tick_holds`` has none)
+        self.holds: list[tuple[np.ndarray, np.ndarray]] | None = [] if hasattr(core, "tick_holds") else None
 
     def frame(self, msg: TaskTargets) -> None:
         """A frame arriving on the tick about to be recorded: its own targets, for the frame errors."""
@@ -278,6 +285,8 @@ class _Recorder:
             ("res1", cmd.residuals[0] if cmd.residuals else np.nan),
         ):
             self.rec[key].append(value)
+        if self.holds is not None:
+            self.holds.append(self.core.tick_holds())
         if self.coll is not None:
             c = np.nan
             if (len(self.rec["t"]) - 1) % CLEARANCE_EVERY == 0:
@@ -318,7 +327,15 @@ class _Recorder:
             dt=dt,
             counts=dict(self.core.counts),
             policy_p={n: np.asarray(v) for n, v in self.policy_p.items() if np.isfinite(v).any()},
+            **self._holds(),
         )
+
+    def _holds(self) -> dict[str, np.ndarray]:
+        """The ``holds`` and ``collision_held`` arrays of the trace (none when the algorithm has no account)."""
+        if not self.holds:
+            return {}
+        holds, collision = zip(*self.holds)
+        return {"holds": np.array(holds, dtype=np.int8), "collision_held": np.array(collision, dtype=bool)}
 
 
 def wrist_only_targets(targets: list[TaskTargets]) -> list[TaskTargets]:

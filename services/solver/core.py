@@ -57,6 +57,8 @@ MOTOR_LIMITS_TASK_ACCELERATION = 10.0
 MOTOR_LIMITS_RESERVE = 0.2
 #: Algorithms with strict levels (a recovery level can sit between two of them).
 STRICT_ALGORITHMS = ("hqp-nullspace", "hqp-original")
+#: ``SolverCore.tick_holds`` codes: what held a joint's raw velocity on a tick.
+HOLD_FREE, HOLD_ACCELERATION, HOLD_SPEED, HOLD_STOP = 0, 1, 2, 3
 #: ``SolverConfig.saturation_trigger`` values: trade only where the target's own velocity is out of the joints' speed
 #: reach, or wherever the strict wrist level is missed.
 SATURATION_TRIGGERS = ("feedforward", "residual")
@@ -439,6 +441,8 @@ class SolverCore:
             SelfCollisionAvoidance(robot) if cfg.self_collision and robot.profile.collision is not None else None
         )
         self._ineq: Inequalities | None = None
+        #: the last tick's velocity box (lb, ub) (n,) [rad/s] (``tick_holds``), None before the first solve
+        self._box: tuple[np.ndarray, np.ndarray] | None = None
         #: the projection of wrist targets onto the waist-carried trunk's surface (``trunk_projection``), or None
         self.trunk_projection = (
             TrunkProjection(robot, self.collision)
@@ -828,7 +832,7 @@ class SolverCore:
             levels = [levels[0], [self.recovery.task], *levels[1:]]
         if self.recovery is not None:
             self.counts["recoveries"] = self.recovery.events
-        lb, ub = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
+        lb, ub = self._box = self.bounds.compute(self.q_raw, self.qd_raw, dt, self._lead_window(t))
         self.slow.fix(self.q_raw, self.qd_raw, lb, ub, self.bounds.amax, dt)
         ineq = self._ineq = self._collision_rows(lb, ub)
         sol = self._solve(levels, lb, ub, ineq)
@@ -931,12 +935,16 @@ class SolverCore:
         ineq = self.collision.rows(self.q_raw, lb, ub)
         return ineq if ineq.rows else None  # no binding row: the box-only fast path
 
-    def _collision_reason(self, qd: np.ndarray) -> str:
-        """Why the wrists stop short: the closest pair whose damper holds them back ('' if none does)."""
+    def _binding_collision_rows(self, qd: np.ndarray) -> np.ndarray:
+        """Indices of this tick's self-collision damper rows that ``qd`` (n,) [rad/s] sits on (closest pair first)."""
         ineq = self._ineq
         if ineq is None or not ineq.rows:
-            return ""
-        active = np.flatnonzero(ineq.G @ qd >= ineq.h - 1e-6)
+            return np.zeros(0, dtype=int)
+        return np.flatnonzero(ineq.G @ qd >= ineq.h - 1e-6)
+
+    def _collision_reason(self, qd: np.ndarray) -> str:
+        """Why the wrists stop short: the closest pair whose damper holds them back ('' if none does)."""
+        active = self._binding_collision_rows(qd)
         if not active.size:
             return ""
         pd = self.collision.close[int(active[0])]
@@ -945,6 +953,39 @@ class SolverCore:
             f"self-collision: {a} held {100 * pd.distance:.1f} cm from {b} "
             f"(safety distance {100 * self.collision.d_s:.1f} cm); the target is inside the body or behind it"
         )
+
+    def tick_holds(self) -> tuple[np.ndarray, np.ndarray]:
+        """What held each joint on the last tick: diagnostics for ``mimic eval``'s goal causes (the node never calls
+        it, so the real-time tick pays nothing but keeping a reference to its box).
+
+        Returns:
+            holds: (n,) int8 per joint, its raw velocity (the plan before the smoother) against this tick's box: 0
+                free (:data:`HOLD_FREE`), else at a bound that is its speed cap (:data:`HOLD_SPEED`), its braking
+                bound within braking distance of the position stop it moves to (:data:`HOLD_STOP`), or otherwise
+                its acceleration band (:data:`HOLD_ACCELERATION`; also the lead window around measured joints,
+                ``max_command_lead``, which ``mimic eval`` never has).
+            collision: (n,) bool, the joints that a self-collision damper row the raw velocity sits on acts on.
+        """
+        n = self.n
+        holds, collision = np.zeros(n, dtype=np.int8), np.zeros(n, dtype=bool)
+        if self._box is None:
+            return holds, collision
+        lb, ub = self._box
+        qd, b = self.qd_raw, self.bounds
+        tol = 1e-9 + 1e-6 * b.vmax
+        at_hi, at_lo = qd >= ub - tol, qd <= lb + tol
+        at = (at_hi | at_lo) & (ub - lb > tol)  # a joint fixed in place (lb = ub) is not held by one limit
+        speed = at & (np.abs(qd) >= b.vmax - tol)
+        # the distance to the stop the joint moves towards, against the distance it needs to brake from full speed
+        to_stop = np.where(at_hi, b.upper - self.q_raw, self.q_raw - b.lower)
+        near = to_stop < b.vmax * self.dt + b.vmax * b.vmax / (2.0 * b.amax)
+        holds[at] = HOLD_ACCELERATION
+        holds[at & near & ~speed] = HOLD_STOP
+        holds[speed] = HOLD_SPEED
+        active = self._binding_collision_rows(qd)
+        if active.size:
+            collision[:] = np.abs(self._ineq.G[active]).max(axis=0) > 0.0
+        return holds, collision
 
     def _advance_raw(self, sol: Solution, lb: np.ndarray, ub: np.ndarray, dt: float) -> tuple[np.ndarray | None, str]:
         """``_checked_velocity`` then ``_integrate`` over dt [s]: the qd (n,) [rad/s] integrated (None when the solve

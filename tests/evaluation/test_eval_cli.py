@@ -154,13 +154,26 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     assert checks["elbow_behind_wqp_cm"]["value"] == pytest.approx(behind)
     assert checks["elbow_p99_cm"]["bar"] == 6.0 and checks["stuck_s"]["value"] == hqp["stuck_s"]
     assert "wrist_mean_cm" in clip["goals"]["unmet"] and "elbow_behind_mink_cm" in clip["goals"]["not_judged"]
+    # what held the arms on the ticks over the missed bar (services/evaluation/causes.py), from the HQP's own run
+    why = checks["wrist_mean_cm"]["causes"]
+    assert why["ticks_scored"] == 2 * hqp["ticks"] and 0 < why["ticks_over"] <= why["ticks_scored"]
+    assert why["shares"][why["main"]] == max(why["shares"].values()) > 0
+    assert "causes" not in checks["elbow_p99_cm"]  # met: nothing to explain
     s = run["summary"]["goals"]
     assert (s["clips"], s["all_met"]) == (1, 0)
-    assert s["goals"]["wrist_mean_cm"] == {"judged": 1, "met": 0, "unmet_clips": [clip["clip"]]}
+    main = {"cause": why["main"], "share": why["shares"][why["main"]]}
+    assert s["goals"]["wrist_mean_cm"] == {
+        "judged": 1,
+        "met": 0,
+        "unmet_clips": [clip["clip"]],
+        "main_causes": {clip["clip"]: main},
+    }
     report = (plots / "report.md").read_text()
     assert "| hqp-nullspace |" in report and "| wqp |" in report
     assert "## Fidelity goals (hqp-nullspace): 0 of 1 clips meet every one" in report
-    assert "| wrist_mean_cm | wrist error mean [cm] <= 0.001 | 0 of 1 |" in report  # the bar of the run
+    # the bar of the run, and the miss with its main cause
+    label = f"{clip['clip']} [{main['cause']} {100 * main['share']:.0f} %]"
+    assert f"| wrist_mean_cm | wrist error mean [cm] <= 0.001 | 0 of 1 | {label} |" in report
     assert "| elbow_p99_cm | elbow error p99 [cm] <= 6 | 1 of 1 |" in report
     bars.write_text("[bars]\nwrist_mean = 0.2\n")
     with pytest.raises(SystemExit) as exc:

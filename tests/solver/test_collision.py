@@ -18,6 +18,7 @@ from services.solver.collision import (
 from services.solver.core import SolverConfig, SolverCore
 from services.solver.inequalities import Inequalities
 from shared.messages import Header, Target, TaskTargets
+from shared.mirror import arm_joints
 from shared.robot.pinocchio_model import build_robot_model
 from shared.rotations import matrix_to_quat
 
@@ -260,7 +261,7 @@ def test_target_inside_the_torso_stops_at_the_safety_distance(robot, avoidance):
     torso = robot.model.getFrameId("torso_link")
     robot.forward(robot.q_rest)
     inside = robot.data.oMf[torso].translation + np.array([0.05, 0.0, 0.15])  # the chest, inside the torso mesh
-    cmds, clear, _core = _drive(robot, avoidance, [inside], 1000)
+    cmds, clear, core = _drive(robot, avoidance, [inside], 1000)
     d_s = robot.profile.collision.safety_distance
     final = _clearance(avoidance, cmds[-1].q)
     assert final == pytest.approx(d_s, abs=0.004)  # the proxies stopped at the safety distance
@@ -268,6 +269,9 @@ def test_target_inside_the_torso_stops_at_the_safety_distance(robot, avoidance):
     assert clear > 0.0  # never through it
     assert cmds[-1].status == "collision"
     assert "self-collision" in cmds[-1].reason and "left" in cmds[-1].reason
+    # the eval's account of the tick (goal causes): the damper holds joints of the left arm, none of the right's
+    _holds, held = core.tick_holds()
+    assert held[arm_joints(robot, "left")].any() and not held[arm_joints(robot, "right")].any()
 
 
 @pytest.mark.parametrize("algo", ["hqp-nullspace", "wqp"])

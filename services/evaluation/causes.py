@@ -1,0 +1,172 @@
+"""Why a fidelity goal is missed: what held the arm on the ticks over the goal's bar.
+
+A goal on a per-tick figure (the wrist or elbow error, the wrist rotation error, the time stuck) is missed because
+some ticks are over its bar. On each such tick, per arm, this names what the target asked and what held the robot
+back, each a flag of its own (a tick can have several):
+
+* ``target_unreachable``: the IK check could not reach the frame's wrist target (``reachability``);
+* ``target_in_body``: the target puts the hand inside the body;
+* ``target_too_fast``: reachable in place but not in time, the arm's IK posture change beyond the joint speed cap;
+* ``self_collision``: a self-collision damper row held the arm (the hand kept off the body or the other arm);
+* ``speed_cap``, ``joint_stop``, ``acceleration``: an arm joint's planned velocity at its speed cap, braking to a
+  position stop, or at its acceleration band (``SolverCore.tick_holds``);
+* ``frame_step``: within :data:`FRAME_STEP_TICKS` of a frame's arrival, where the extrapolated reference steps by
+  what the last frames did not tell (at 30 fps, up to a few cm at a wave's turn).
+
+A tick with none of these is the solver's own trade (``none``: for a level-2 figure, the elbows against the wrist
+orientations). Each flag's share of the over-bar ticks is reported beside its share of all the scored ticks
+(``base``), since a limit the arm touches all the time explains nothing. The waist joints carry both arms, so they
+are in neither arm's flags.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from services.evaluation.goals import GOALS
+from services.evaluation.metrics import (
+    STUCK_ERR,
+    per_tick,
+    position_errors,
+    rotation_errors,
+    rotation_ok,
+    tick_inside,
+    tick_reachable,
+)
+from services.evaluation.reachability import ReachabilityReport
+from services.evaluation.runner import Trace
+from services.solver.core import HOLD_ACCELERATION, HOLD_SPEED, HOLD_STOP
+from shared.mirror import arm_joints
+from shared.robot.pinocchio_model import RobotModel
+from shared.targets import SIDES
+
+#: Ticks after a frame's arrival counted as its step (6 ms at 500 Hz: the closing of a step at the wrist gain).
+FRAME_STEP_TICKS = 3
+#: The causes, in the order they are reported.
+CAUSES = (
+    "target_unreachable",
+    "target_in_body",
+    "target_too_fast",
+    "self_collision",
+    "speed_cap",
+    "joint_stop",
+    "acceleration",
+    "frame_step",
+)
+#: The name of a tick over the bar that none of :data:`CAUSES` flags.
+NONE = "none"
+
+
+def _position(target: str) -> Callable:
+    def figure(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        n = f"{side}_{target}"
+        ok = trace.ref_ok.get(n, np.zeros(len(trace.t), bool))
+        over = np.zeros(len(trace.t), bool)
+        over[ok] = 100.0 * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, [n]) > bar
+        return over, ok
+
+    return figure
+
+
+def _rotation(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    n = f"{side}_wrist"
+    ok = rotation_ok(trace).get(n, np.zeros(len(trace.t), bool))
+    over = np.zeros(len(trace.t), bool)
+    over[ok] = rotation_errors({n: trace.ref_R[n]}, {n: trace.kin_R[n]}, {n: ok}) > bar
+    return over, ok
+
+
+def _stuck(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The ticks ``stuck_s`` counts (the wrist more than STUCK_ERR off a reachable target); bar is in seconds."""
+    over, ok = _position("wrist")(trace, side, 100.0 * STUCK_ERR, reachable)
+    if reachable is not None:
+        ok = ok & reachable
+    return over & ok, ok
+
+
+#: Per-tick figure name (``Goal.ticks``) -> (trace, side, bar, reachable ticks or None) -> (over, scored), (K,)
+#: bool each: the ticks over the bar and the ticks the figure scores.
+FIGURES: dict[str, Callable] = {
+    "wrist_cm": _position("wrist"),
+    "elbow_cm": _position("elbow"),
+    "rotation_deg": _rotation,
+    "stuck": _stuck,
+}
+
+
+def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | None) -> dict[str, dict[str, np.ndarray]]:
+    """side -> cause -> (K,) bool, each of :data:`CAUSES` the trace has the data for (the target causes need the
+    IK check's report; the solver's, its ``holds``)."""
+    k = len(trace.t)
+    since = np.full(k, FRAME_STEP_TICKS)  # ticks since the last arrival (no frame yet: not a step)
+    for start in trace.frame_tick:
+        end = min(k, start + FRAME_STEP_TICKS)
+        since[start:end] = np.minimum(since[start:end], np.arange(end - start))
+    none = np.zeros(k, bool)
+    if report is not None:
+        reach, inside = tick_reachable(trace, report), tick_inside(trace, report)
+        fast = per_tick(trace, report, report.too_fast())
+    out = {}
+    for s in SIDES:
+        c = {}
+        if report is not None and s in reach:
+            body = inside.get(s, none)
+            c = {"target_unreachable": ~reach[s] & ~body, "target_in_body": body, "target_too_fast": fast.get(s, none)}
+        if trace.holds.shape == (k, robot.nq):
+            arm = arm_joints(robot, s)
+            holds = trace.holds[:, arm]
+            c["self_collision"] = trace.collision_held[:, arm].any(axis=1)
+            c["speed_cap"] = (holds == HOLD_SPEED).any(axis=1)
+            c["joint_stop"] = (holds == HOLD_STOP).any(axis=1)
+            c["acceleration"] = (holds == HOLD_ACCELERATION).any(axis=1)
+        c["frame_step"] = since < FRAME_STEP_TICKS
+        out[s] = {name: c[name] for name in CAUSES if name in c}
+    return out
+
+
+def miss_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | None, figure: str, bar: float) -> dict:
+    """What held the arms on the ticks over ``bar`` of a per-tick figure (a key of :data:`FIGURES`), both arms.
+
+    Returns:
+        ``{"ticks_over", "ticks_scored", "shares": {cause: share of the over-bar ticks}, "base": {cause: share of
+        the scored ticks}, "main": the cause with the largest share (``"none"`` when the largest is the ticks no
+        cause flags)}``; ``shares`` and ``base`` hold ``"none"`` too.
+    """
+    causes = tick_causes(trace, robot, report)
+    reachable = tick_reachable(trace, report) if report is not None else {}
+    over_n, scored_n = 0, 0
+    hits = dict.fromkeys([*CAUSES, NONE], 0)
+    base = dict.fromkeys([*CAUSES, NONE], 0)
+    for s in SIDES:
+        over, scored = FIGURES[figure](trace, s, bar, reachable.get(s))
+        flags = causes[s]
+        anything = np.zeros(len(trace.t), bool)
+        for name, f in flags.items():
+            hits[name] += int(np.sum(f & over))
+            base[name] += int(np.sum(f & scored))
+            anything |= f
+        hits[NONE] += int(np.sum(over & ~anything))
+        base[NONE] += int(np.sum(scored & ~anything))
+        over_n += int(over.sum())
+        scored_n += int(scored.sum())
+    known = [*(n for n in CAUSES if any(n in causes[s] for s in SIDES)), NONE]
+    shares = {n: hits[n] / over_n if over_n else 0.0 for n in known}
+    return {
+        "ticks_over": over_n,
+        "ticks_scored": scored_n,
+        "shares": shares,
+        "base": {n: base[n] / scored_n if scored_n else 0.0 for n in known},
+        "main": max(known, key=lambda n: shares[n]) if over_n else None,
+    }
+
+
+def explain_misses(goals: dict, trace: Trace, robot: RobotModel, report: ReachabilityReport | None) -> None:
+    """Add ``causes`` (:func:`miss_causes` at the check's bar) to each missed check of a clip's goals
+    (``goals.clip_goals``) whose goal has a per-tick figure; ``trace`` is the judged algorithm's."""
+    figures = {g.key: g.ticks for g in GOALS if g.ticks}
+    for key in goals["unmet"]:
+        if key in figures:
+            check = goals["checks"][key]
+            check["causes"] = miss_causes(trace, robot, report, figures[key], check["bar"])
