@@ -15,8 +15,11 @@ back, each a flag of its own (a tick can have several):
 
 A tick with none of these is the solver's own trade (``none``: for a level-2 figure, the elbows against the wrist
 orientations). Each flag's share of the over-bar ticks is reported beside its share of all the scored ticks
-(``base``), since a limit the arm touches all the time explains nothing. The waist joints carry both arms, so they
-are in neither arm's flags.
+(``base``), since a limit the arm touches all the time explains nothing: the main cause is the flag whose share is
+furthest above its base. The waist joints carry both arms, so they are in neither arm's flags.
+
+A goal against a peer's mean (the elbow behind the WQP's or mink's, the wrist behind mink's) is explained the same way
+on the ticks where the judged error is above the peer's on the same tick, each weighed by that excess.
 """
 
 from __future__ import annotations
@@ -60,40 +63,34 @@ NONE = "none"
 
 
 def _position(target: str) -> Callable:
-    def figure(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def figure(trace: Trace, side: str) -> np.ndarray:
         n = f"{side}_{target}"
+        err = np.full(len(trace.t), np.nan)
         ok = trace.ref_ok.get(n, np.zeros(len(trace.t), bool))
-        over = np.zeros(len(trace.t), bool)
-        over[ok] = 100.0 * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, [n]) > bar
-        return over, ok
+        err[ok] = 100.0 * position_errors(trace.ref_p, trace.kin_p, trace.ref_ok, [n])
+        return err
 
     return figure
 
 
-def _rotation(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _rotation(trace: Trace, side: str) -> np.ndarray:
     n = f"{side}_wrist"
+    err = np.full(len(trace.t), np.nan)
     ok = rotation_ok(trace).get(n, np.zeros(len(trace.t), bool))
-    over = np.zeros(len(trace.t), bool)
-    over[ok] = rotation_errors({n: trace.ref_R[n]}, {n: trace.kin_R[n]}, {n: ok}) > bar
-    return over, ok
+    err[ok] = rotation_errors({n: trace.ref_R[n]}, {n: trace.kin_R[n]}, {n: ok})
+    return err
 
 
-def _stuck(trace: Trace, side: str, bar: float, reachable: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The ticks ``stuck_s`` counts (the wrist more than STUCK_ERR off a reachable target); bar is in seconds."""
-    over, ok = _position("wrist")(trace, side, 100.0 * STUCK_ERR, reachable)
-    if reachable is not None:
-        ok = ok & reachable
-    return over & ok, ok
-
-
-#: Per-tick figure name (``Goal.ticks``) -> (trace, side, bar, reachable ticks or None) -> (over, scored), (K,)
-#: bool each: the ticks over the bar and the ticks the figure scores.
+#: Per-tick figure name (``Goal.ticks``) -> (trace, side) -> (K,) that arm's error on each tick in the goal's unit
+#: ([cm], [deg]), NaN where the figure scores no error. ``stuck`` is the wrist's, scored on reachable targets only.
 FIGURES: dict[str, Callable] = {
     "wrist_cm": _position("wrist"),
     "elbow_cm": _position("elbow"),
     "rotation_deg": _rotation,
-    "stuck": _stuck,
+    "stuck": _position("wrist"),
 }
+#: Per-tick bars of the figures whose goal's bar is not per tick: ``stuck_s`` counts the ticks over STUCK_ERR [cm].
+TICK_BARS = {"stuck": 100.0 * STUCK_ERR}
 
 
 def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | None) -> dict[str, dict[str, np.ndarray]]:
@@ -126,47 +123,72 @@ def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | No
     return out
 
 
-def miss_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | None, figure: str, bar: float) -> dict:
-    """What held the arms on the ticks over ``bar`` of a per-tick figure (a key of :data:`FIGURES`), both arms.
+def miss_causes(
+    trace: Trace,
+    robot: RobotModel,
+    report: ReachabilityReport | None,
+    figure: str,
+    bar: float,
+    peer: Trace | None = None,
+) -> dict:
+    """What held the arms where a goal on a per-tick figure (a key of :data:`FIGURES`) is missed, both arms.
+
+    Without ``peer``: on the ticks over ``bar`` (the figure's :data:`TICK_BARS` where it has one), each counted
+    once. With ``peer`` (a goal against its mean, e.g. ``elbow_behind_wqp_cm``): on the ticks where ``trace``'s
+    error is above the peer's on the same tick, each weighed by that excess; ``bar`` is then unused.
 
     Returns:
-        ``{"ticks_over", "ticks_scored", "shares": {cause: share of the over-bar ticks}, "base": {cause: share of
-        the scored ticks}, "main": the cause with the largest share (``"none"`` when the largest is the ticks no
-        cause flags)}``; ``shares`` and ``base`` hold ``"none"`` too.
+        ``{"ticks_over", "ticks_scored", "weighed_by", "shares": {cause: its share of the over-bar ticks, or of the
+        excess}, "base": {cause: share of the scored ticks}, "main": the cause whose share is furthest above its
+        base (the one the misses have most beyond the arm's usual; ``"none"`` when that is the ticks no cause flags;
+        None when nothing was over)}``; ``shares`` and ``base`` hold ``"none"`` too.
     """
     causes = tick_causes(trace, robot, report)
-    reachable = tick_reachable(trace, report) if report is not None else {}
-    over_n, scored_n = 0, 0
-    hits = dict.fromkeys([*CAUSES, NONE], 0)
+    reachable = tick_reachable(trace, report) if report is not None and figure == "stuck" else {}
+    bar = TICK_BARS.get(figure, bar)
+    over_n, scored_n, total = 0, 0, 0.0
+    hits = dict.fromkeys([*CAUSES, NONE], 0.0)
     base = dict.fromkeys([*CAUSES, NONE], 0)
     for s in SIDES:
-        over, scored = FIGURES[figure](trace, s, bar, reachable.get(s))
-        flags = causes[s]
+        err = FIGURES[figure](trace, s)
+        scored = np.isfinite(err) & reachable.get(s, True)
+        if peer is None:
+            weight = (scored & (np.nan_to_num(err) > bar)).astype(float)
+        else:
+            theirs = FIGURES[figure](peer, s)
+            scored &= np.isfinite(theirs)
+            weight = np.where(scored, np.maximum(np.nan_to_num(err - theirs), 0.0), 0.0)
         anything = np.zeros(len(trace.t), bool)
-        for name, f in flags.items():
-            hits[name] += int(np.sum(f & over))
+        for name, f in causes[s].items():
+            hits[name] += float(np.sum(weight[f]))
             base[name] += int(np.sum(f & scored))
             anything |= f
-        hits[NONE] += int(np.sum(over & ~anything))
+        hits[NONE] += float(np.sum(weight[~anything]))
         base[NONE] += int(np.sum(scored & ~anything))
-        over_n += int(over.sum())
+        over_n += int(np.sum(weight > 0))
         scored_n += int(scored.sum())
+        total += float(weight.sum())
     known = [*(n for n in CAUSES if any(n in causes[s] for s in SIDES)), NONE]
-    shares = {n: hits[n] / over_n if over_n else 0.0 for n in known}
+    shares = {n: hits[n] / total if total else 0.0 for n in known}
     return {
         "ticks_over": over_n,
         "ticks_scored": scored_n,
+        "weighed_by": "ticks over the bar" if peer is None else f"excess over {peer.algo}'s error",
         "shares": shares,
         "base": {n: base[n] / scored_n if scored_n else 0.0 for n in known},
-        "main": max(known, key=lambda n: shares[n]) if over_n else None,
+        "main": max(known, key=lambda n: shares[n] - base[n] / scored_n) if total else None,
     }
 
 
-def explain_misses(goals: dict, trace: Trace, robot: RobotModel, report: ReachabilityReport | None) -> None:
-    """Add ``causes`` (:func:`miss_causes` at the check's bar) to each missed check of a clip's goals
-    (``goals.clip_goals``) whose goal has a per-tick figure; ``trace`` is the judged algorithm's."""
-    figures = {g.key: g.ticks for g in GOALS if g.ticks}
+def explain_misses(goals: dict, traces: dict[str, Trace], robot: RobotModel, report: ReachabilityReport | None) -> None:
+    """Add ``causes`` (:func:`miss_causes`) to each missed check of a clip's goals (``goals.clip_goals``) whose
+    goal has a per-tick figure; ``traces``: algorithm -> its trace on the clip (the judged one's, and the peer's of
+    a goal against a peer; a goal whose traces are missing is left unexplained)."""
+    goal = {g.key: g for g in GOALS if g.ticks}
     for key in goals["unmet"]:
-        if key in figures:
-            check = goals["checks"][key]
-            check["causes"] = miss_causes(trace, robot, report, figures[key], check["bar"])
+        g = goal.get(key)
+        if g is None or goals["algo"] not in traces or (g.peer is not None and g.peer not in traces):
+            continue
+        check = goals["checks"][key]
+        peer = traces[g.peer] if g.peer is not None else None
+        check["causes"] = miss_causes(traces[goals["algo"]], robot, report, g.ticks, check["bar"], peer)

@@ -349,9 +349,8 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
         entry["hqp_vs"] = compare(entry, REFERENCE_ALGO) if REFERENCE_ALGO in algos else {}
         goals = clip_goals(entry["algos"], bars)
         if goals is not None:
-            judged = traces.get((clip.name, REFERENCE_ALGO))
-            if judged is not None:  # what held the arms on the ticks over each missed goal's bar
-                explain_misses(goals, judged, robot, report)
+            # what held the arms on the ticks over each missed goal's bar (or behind the peer's errors)
+            explain_misses(goals, {a: traces[(clip.name, a)] for a in algos if (clip.name, a) in traces}, robot, report)
             entry["goals"] = goals
         clips_out.append(entry)
     bar.close()

@@ -34,8 +34,9 @@ class Goal:
         bar: the default bar.
         op: ``"<="``, ``">="`` or ``"<"`` (value against bar).
         value: the clip's ``algos`` block (algorithm -> metrics) -> the figure, or None when the run has none.
-        ticks: the per-tick figure whose ticks over the bar a miss is explained by (``causes.FIGURES``), or None
-            (a goal on counts or on a peer's figures).
+        ticks: the per-tick figure a miss is explained on (``causes.FIGURES``): the ticks over the bar, or with a
+            ``peer`` those where the judged algorithm's error is above the peer's; None: a goal on counts.
+        peer: the algorithm a goal compares against, or None.
     """
 
     key: str
@@ -44,6 +45,7 @@ class Goal:
     op: str
     value: Callable[[dict], float | None]
     ticks: str | None = None
+    peer: str | None = None
 
 
 def _stat(metric: str, stat: str) -> Callable[[dict], float | None]:
@@ -84,9 +86,33 @@ GOALS: tuple[Goal, ...] = (
     Goal("acceleration_violations", "commands past an acceleration limit", 0, "<=", _scalar("acceleration_violations")),
     Goal("self_collisions", "steps with an arm in penetration", 0, "<=", _scalar("self_collisions")),
     Goal("min_clearance_cm", "smallest arm clearance [cm]", 1.0, ">=", _scalar("min_clearance_cm")),
-    Goal("elbow_behind_wqp_cm", "elbow mean minus the WQP's [cm]", ELBOW_TIE_CM, "<=", _behind("wqp", "elbow_err_cm")),
-    Goal("elbow_behind_mink_cm", "elbow mean minus mink's [cm]", ELBOW_TIE_CM, "<=", _behind("mink", "elbow_err_cm")),
-    Goal("wrist_behind_mink_cm", "wrist mean minus mink's [cm]", 0.0, "<", _behind("mink", "wrist_err_cm")),
+    Goal(
+        "elbow_behind_wqp_cm",
+        "elbow mean minus the WQP's [cm]",
+        ELBOW_TIE_CM,
+        "<=",
+        _behind("wqp", "elbow_err_cm"),
+        ticks="elbow_cm",
+        peer="wqp",
+    ),
+    Goal(
+        "elbow_behind_mink_cm",
+        "elbow mean minus mink's [cm]",
+        ELBOW_TIE_CM,
+        "<=",
+        _behind("mink", "elbow_err_cm"),
+        ticks="elbow_cm",
+        peer="mink",
+    ),
+    Goal(
+        "wrist_behind_mink_cm",
+        "wrist mean minus mink's [cm]",
+        0.0,
+        "<",
+        _behind("mink", "wrist_err_cm"),
+        ticks="wrist_cm",
+        peer="mink",
+    ),
 )
 GOAL_KEYS = tuple(g.key for g in GOALS)
 
@@ -169,16 +195,22 @@ def goals_lines(summary: dict) -> list[str]:
 
 
 def unmet_labels(row: dict) -> list[str]:
-    """The clips a goal was missed on (a ``summary.goals.goals`` row), each with its main cause and that cause's
-    share of the ticks over the bar where the miss was explained: ``"clip [self_collision 83 %]"``."""
+    """The clips a goal was missed on (a ``summary.goals.goals`` row), each with its main cause where the miss was
+    explained, that cause's share where the goal is missed and over all ticks: ``"clip [self_collision 83 % vs 26
+    %]"``."""
     why = row.get("main_causes", {})
-    return [f"{c} [{why[c]['cause']} {100 * why[c]['share']:.0f} %]" if c in why else c for c in row["unmet_clips"]]
+    return [f"{c} [{_percent(why[c])}]" if c in why else c for c in row["unmet_clips"]]
+
+
+def _percent(why: dict) -> str:
+    """``"self_collision 83 % vs 26 %"``: a main cause, its share where the goal is missed and over all ticks."""
+    return f"{why['cause']} {100 * why['share']:.0f} % vs {100 * why['base']:.0f} %"
 
 
 def _main_cause(check: dict) -> dict | None:
-    """``{"cause", "share"}``: the main cause of a missed goal and its share of the ticks over the bar (None when
-    the miss has no explanation)."""
+    """``{"cause", "share", "base"}``: the main cause of a missed goal, its share where the goal is missed and its
+    share of all scored ticks (None when the miss has no explanation)."""
     why = check.get("causes")
     if not why or why["main"] is None:
         return None
-    return {"cause": why["main"], "share": why["shares"][why["main"]]}
+    return {"cause": why["main"], "share": why["shares"][why["main"]], "base": why["base"][why["main"]]}

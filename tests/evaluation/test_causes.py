@@ -51,8 +51,28 @@ def test_the_ticks_over_the_bar_and_what_held_them(robot):
     steps = 2 * FRAME_STEP_TICKS * len(range(0, K, FRAME))  # both arms, the first ticks of each frame
     assert c["base"]["frame_step"] == pytest.approx(steps / (2 * K))
     assert c["base"]["joint_stop"] == pytest.approx(10 / (2 * K))  # the right arm's ticks at its stop
-    assert c["main"] == "speed_cap"
+    assert c["main"] == "speed_cap"  # 50 % against 1 %: further above its base than the collision's 20 % vs 0.5 %
     assert miss_causes(_trace(robot), robot, None, "wrist_cm", 2.5)["ticks_over"] == 0  # 2 cm is within 2.5
+
+
+def test_behind_a_peer_the_excess_is_what_is_explained(robot):
+    """Against a peer the ticks are weighed by how far the judged error is above the peer's: a peer as far off on
+    45-49 and exact on 40-44 leaves only the speed-capped ticks 40-44 behind it; one 1 cm off on all of 40-49 halves
+    each tick's excess and the shares are the over-bar ones."""
+    ours = _trace(robot)
+    peer = synthetic_trace(robot, {})
+    peer.algo = "wqp"
+    peer.kin_p["left_wrist"][45:50] += np.array([0.0, 0.02, 0.0])
+    c = miss_causes(ours, robot, None, "wrist_cm", 0.0, peer)
+    assert c["weighed_by"] == "excess over wqp's error" and c["ticks_over"] == 5
+    assert c["shares"]["speed_cap"] == pytest.approx(1.0) and c["main"] == "speed_cap"
+    half = synthetic_trace(robot, {})
+    half.kin_p["left_wrist"][40:50] += np.array([0.0, 0.01, 0.0])
+    c = miss_causes(ours, robot, None, "wrist_cm", 0.0, half)
+    assert c["ticks_over"] == 10 and c["shares"] == pytest.approx(
+        miss_causes(ours, robot, None, "wrist_cm", 1.0)["shares"]
+    )
+    assert miss_causes(ours, robot, None, "wrist_cm", 0.0, ours)["main"] is None  # never behind itself
 
 
 def test_target_causes_from_the_ik_check(robot):
@@ -73,7 +93,7 @@ def test_target_causes_from_the_ik_check(robot):
     assert c["shares"]["target_unreachable"] == pytest.approx(0.8)
     assert c["shares"]["target_too_fast"] == pytest.approx(0.8)
     assert c["shares"]["target_in_body"] == pytest.approx(0.2)
-    assert c["main"] == "target_unreachable"  # the first of the largest
+    assert c["main"] == "target_unreachable"  # the first of the two furthest above their base (80 % vs 4 %)
     stuck = miss_causes(tr, robot, report, "stuck", 0.1)
     assert stuck["ticks_over"] == 0 and stuck["main"] is None
     assert miss_causes(tr, robot, None, "stuck", 0.1)["ticks_over"] == 10  # without the check every target counts
@@ -86,13 +106,14 @@ def test_missed_goals_carry_their_causes_into_the_summary_and_the_log(robot):
     goals = clip_goals(algos, {"wrist_p99_cm": 1.0, "wrist_mean_cm": 0.5})
     goals["unmet"].insert(0, "wrist_p99_cm")  # as if the wrist p99 were over its bar too
     goals["checks"]["wrist_p99_cm"]["met"] = False
-    explain_misses(goals, _trace(robot, off_m=0.015), robot, None)
+    explain_misses(goals, {"hqp-nullspace": _trace(robot, off_m=0.015)}, robot, None)
     assert goals["checks"]["wrist_p99_cm"]["causes"]["main"] == "speed_cap"
     assert goals["checks"]["stuck_s"]["causes"]["ticks_over"] == 0  # 1.5 cm is within STUCK_ERR
     assert "causes" not in goals["checks"]["min_clearance_cm"]  # a goal on a count: nothing per tick
     s = goals_summary({"clip_a": goals})
-    assert s["goals"]["wrist_p99_cm"]["main_causes"] == {"clip_a": {"cause": "speed_cap", "share": 0.5}}
+    main = {"cause": "speed_cap", "share": 0.5, "base": 5 / (2 * K)}
+    assert s["goals"]["wrist_p99_cm"]["main_causes"] == {"clip_a": pytest.approx(main)}
     assert "main_causes" not in s["goals"]["stuck_s"] and "main_causes" not in s["goals"]["min_clearance_cm"]
     lines = goals_lines(s)
-    assert "  wrist_p99_cm: met on 0 of 1; not on clip_a [speed_cap 50 %]" in lines
+    assert "  wrist_p99_cm: met on 0 of 1; not on clip_a [speed_cap 50 % vs 1 %]" in lines
     assert "  min_clearance_cm: met on 0 of 1; not on clip_a" in lines

@@ -157,11 +157,12 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     # what held the arms on the ticks over the missed bar (services/evaluation/causes.py), from the HQP's own run
     why = checks["wrist_mean_cm"]["causes"]
     assert why["ticks_scored"] == 2 * hqp["ticks"] and 0 < why["ticks_over"] <= why["ticks_scored"]
-    assert why["shares"][why["main"]] == max(why["shares"].values()) > 0
+    lift = {c: why["shares"][c] - why["base"][c] for c in why["shares"]}
+    assert lift[why["main"]] == max(lift.values()) and why["shares"][why["main"]] > 0
     assert "causes" not in checks["elbow_p99_cm"]  # met: nothing to explain
     s = run["summary"]["goals"]
     assert (s["clips"], s["all_met"]) == (1, 0)
-    main = {"cause": why["main"], "share": why["shares"][why["main"]]}
+    main = {"cause": why["main"], "share": why["shares"][why["main"]], "base": why["base"][why["main"]]}
     assert s["goals"]["wrist_mean_cm"] == {
         "judged": 1,
         "met": 0,
@@ -172,7 +173,7 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     assert "| hqp-nullspace |" in report and "| wqp |" in report
     assert "## Fidelity goals (hqp-nullspace): 0 of 1 clips meet every one" in report
     # the bar of the run, and the miss with its main cause
-    label = f"{clip['clip']} [{main['cause']} {100 * main['share']:.0f} %]"
+    label = f"{clip['clip']} [{main['cause']} {100 * main['share']:.0f} % vs {100 * main['base']:.0f} %]"
     assert f"| wrist_mean_cm | wrist error mean [cm] <= 0.001 | 0 of 1 | {label} |" in report
     assert "| elbow_p99_cm | elbow error p99 [cm] <= 6 | 1 of 1 |" in report
     bars.write_text("[bars]\nwrist_mean = 0.2\n")
