@@ -139,9 +139,9 @@ def miss_causes(
 
     Returns:
         ``{"ticks_over", "ticks_scored", "weighed_by", "shares": {cause: its share of the over-bar ticks, or of the
-        excess}, "base": {cause: share of the scored ticks}, "main": the cause whose share is furthest above its
-        base (the one the misses have most beyond the arm's usual; ``"none"`` when that is the ticks no cause flags;
-        None when nothing was over)}``; ``shares`` and ``base`` hold ``"none"`` too.
+        excess}, "base": {cause: share of the scored ticks}, "main": of the causes with a share, the one furthest
+        above its base (what the misses have most beyond the arm's usual; ``"none"`` when that is the ticks no cause
+        flags; None when nothing was over)}``; ``shares`` and ``base`` hold ``"none"`` too.
     """
     causes = tick_causes(trace, robot, report)
     reachable = tick_reachable(trace, report) if report is not None and figure == "stuck" else {}
@@ -176,7 +176,7 @@ def miss_causes(
         "weighed_by": "ticks over the bar" if peer is None else f"excess over {peer.algo}'s error",
         "shares": shares,
         "base": {n: base[n] / scored_n if scored_n else 0.0 for n in known},
-        "main": max(known, key=lambda n: shares[n] - base[n] / scored_n) if total else None,
+        "main": max((n for n in known if shares[n] > 0), key=lambda n: shares[n] - base[n] / scored_n, default=None),
     }
 
 

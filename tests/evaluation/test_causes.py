@@ -53,6 +53,10 @@ def test_the_ticks_over_the_bar_and_what_held_them(robot):
     assert c["base"]["joint_stop"] == pytest.approx(10 / (2 * K))  # the right arm's ticks at its stop
     assert c["main"] == "speed_cap"  # 50 % against 1 %: further above its base than the collision's 20 % vs 0.5 %
     assert miss_causes(_trace(robot), robot, None, "wrist_cm", 2.5)["ticks_over"] == 0  # 2 cm is within 2.5
+    # every tick over the bar: no flag is above its base, and the main cause is one the misses have, never a 0 %
+    everywhere = miss_causes(_trace(robot), robot, None, "wrist_cm", -1.0)
+    assert everywhere["shares"] == pytest.approx(everywhere["base"])
+    assert everywhere["shares"][everywhere["main"]] > 0
 
 
 def test_behind_a_peer_the_excess_is_what_is_explained(robot):
