@@ -5,7 +5,7 @@ some ticks are over its bar. On each such tick, per arm, this names what the tar
 back, each a flag of its own (a tick can have several):
 
 * ``target_unreachable``: the IK check could not reach the frame's wrist target (``reachability``);
-* ``target_in_body``: the target puts the hand inside the body;
+* ``target_at_body``: the target puts the hand inside the body or within the solver's safety distance of it;
 * ``target_too_fast``: reachable in place but not in time, the arm's IK posture change beyond the joint speed cap;
 * ``self_collision``: a self-collision damper row held the arm (the hand kept off the body or the other arm);
 * ``speed_cap``, ``joint_stop``, ``acceleration``: an arm joint's planned velocity at its speed cap, braking to a
@@ -50,7 +50,7 @@ FRAME_STEP_TICKS = 3
 #: The causes, in the order they are reported.
 CAUSES = (
     "target_unreachable",
-    "target_in_body",
+    "target_at_body",
     "target_too_fast",
     "self_collision",
     "speed_cap",
@@ -104,13 +104,16 @@ def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | No
     none = np.zeros(k, bool)
     if report is not None:
         reach, inside = tick_reachable(trace, report), tick_inside(trace, report)
-        fast = per_tick(trace, report, report.too_fast())
+        near, fast = per_tick(trace, report, report.near_body()), per_tick(trace, report, report.too_fast())
     out = {}
     for s in SIDES:
         c = {}
         if report is not None and s in reach:
-            body = inside.get(s, none)
-            c = {"target_unreachable": ~reach[s] & ~body, "target_in_body": body, "target_too_fast": fast.get(s, none)}
+            c = {
+                "target_unreachable": ~reach[s] & ~inside.get(s, none),
+                "target_at_body": near.get(s, none),
+                "target_too_fast": fast.get(s, none),
+            }
         if trace.holds.shape == (k, robot.nq):
             arm = arm_joints(robot, s)
             holds = trace.holds[:, arm]

@@ -140,6 +140,12 @@ class ReachabilityReport:
         """side -> (F,) bool, the wrist target puts the hand inside the body (False where unchecked or invalid)."""
         return {s: np.nan_to_num(d, nan=np.inf) < self.body_tol for s, d in self.body_dist.items()}
 
+    def near_body(self) -> dict[str, np.ndarray]:
+        """side -> (F,) bool, the wrist target puts the hand inside the body or within the solver's safety distance
+        of it, where its self-collision dampers hold the hand off (False where unchecked or invalid)."""
+        tol = max(self.body_tol, self.safety_distance)
+        return {s: np.nan_to_num(d, nan=np.inf) < tol for s, d in self.body_dist.items()}
+
     def reachable(self, pair: bool = False) -> dict[str, np.ndarray]:
         """side -> (F,) bool, the target (pair) reached within tol with the hand outside the body; invalid targets
         count as reachable."""

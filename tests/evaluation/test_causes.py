@@ -81,22 +81,26 @@ def test_behind_a_peer_the_excess_is_what_is_explained(robot):
 
 def test_target_causes_from_the_ik_check(robot):
     """Frame 2 (ticks 32-47) of the left arm is out of reach and too fast for the joints, frame 3 (48-63) inside
-    the body: those name 8 and 2 of the 10 ticks over the bar; and with the IK check the stuck ticks are those on
+    the body: those name 8 and 2 of the 10 ticks over the bar; a frame within the safety distance of the body and
+    outside it (frame 5) is at the body too, not out of reach. With the IK check the stuck ticks are those on
     reachable targets only, so none here."""
     frames = K // FRAME + 1
     res = {s: np.zeros(frames) for s in ("left", "right")}
     res["left"][2] = 0.05
     body = {s: np.full(frames, 0.1) for s in ("left", "right")}
     body["left"][3] = -0.01
+    body["left"][5] = 0.01  # within the 1.5 cm safety distance
     speed = {s: np.full(frames, 1.0) for s in ("left", "right")}
     speed["left"][2] = 50.0
-    report = ReachabilityReport(np.arange(frames), res, res, speed, vmax=8.0, body_dist=body)
+    report = ReachabilityReport(np.arange(frames), res, res, speed, vmax=8.0, body_dist=body, safety_distance=0.015)
     tr = _trace(robot, off_m=0.03)
     c = miss_causes(tr, robot, report, "wrist_cm", 1.0)
     assert set(c["shares"]) == {*CAUSES, NONE}
     assert c["shares"]["target_unreachable"] == pytest.approx(0.8)
     assert c["shares"]["target_too_fast"] == pytest.approx(0.8)
-    assert c["shares"]["target_in_body"] == pytest.approx(0.2)
+    assert c["shares"]["target_at_body"] == pytest.approx(0.2)
+    assert c["base"]["target_at_body"] == pytest.approx(2 * FRAME / (2 * K))  # frames 3 and 5 of the left arm
+    assert c["base"]["target_unreachable"] == pytest.approx(FRAME / (2 * K))  # frame 2 only
     assert c["main"] == "target_unreachable"  # the first of the two furthest above their base (80 % vs 4 %)
     stuck = miss_causes(tr, robot, report, "stuck", 0.1)
     assert stuck["ticks_over"] == 0 and stuck["main"] is None
