@@ -97,10 +97,9 @@ def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | No
     """side -> cause -> (K,) bool, each of :data:`CAUSES` the trace has the data for (the target causes need the
     IK check's report; the solver's, its ``holds``)."""
     k = len(trace.t)
-    since = np.full(k, FRAME_STEP_TICKS)  # ticks since the last arrival (no frame yet: not a step)
+    step = np.zeros(k, bool)
     for start in trace.frame_tick:
-        end = min(k, start + FRAME_STEP_TICKS)
-        since[start:end] = np.minimum(since[start:end], np.arange(end - start))
+        step[start : start + FRAME_STEP_TICKS] = True
     none = np.zeros(k, bool)
     if report is not None:
         reach, inside = tick_reachable(trace, report), tick_inside(trace, report)
@@ -121,7 +120,7 @@ def tick_causes(trace: Trace, robot: RobotModel, report: ReachabilityReport | No
             c["speed_cap"] = (holds == HOLD_SPEED).any(axis=1)
             c["joint_stop"] = (holds == HOLD_STOP).any(axis=1)
             c["acceleration"] = (holds == HOLD_ACCELERATION).any(axis=1)
-        c["frame_step"] = since < FRAME_STEP_TICKS
+        c["frame_step"] = step
         out[s] = {name: c[name] for name in CAUSES if name in c}
     return out
 

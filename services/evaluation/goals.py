@@ -68,19 +68,19 @@ def _behind(peer: str, metric: str) -> Callable[[dict], float | None]:
 
 
 GOALS: tuple[Goal, ...] = (
-    Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean"), "wrist_cm"),
-    Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99"), "wrist_cm"),
-    Goal("elbow_mean_cm", "elbow error mean [cm]", 1.5, "<=", _stat("elbow_err_cm", "mean"), "elbow_cm"),
-    Goal("elbow_p99_cm", "elbow error p99 [cm]", 6.0, "<=", _stat("elbow_err_cm", "p99"), "elbow_cm"),
+    Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean"), ticks="wrist_cm"),
+    Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99"), ticks="wrist_cm"),
+    Goal("elbow_mean_cm", "elbow error mean [cm]", 1.5, "<=", _stat("elbow_err_cm", "mean"), ticks="elbow_cm"),
+    Goal("elbow_p99_cm", "elbow error p99 [cm]", 6.0, "<=", _stat("elbow_err_cm", "p99"), ticks="elbow_cm"),
     Goal(
         "wrist_rotation_p99_deg",
         "wrist rotation error p99 [deg]",
         10.0,
         "<=",
         _stat("wrist_rot_err_deg", "p99"),
-        "rotation_deg",
+        ticks="rotation_deg",
     ),
-    Goal("stuck_s", "longest time 2 cm off a reachable wrist target [s]", 0.1, "<=", _scalar("stuck_s"), "stuck"),
+    Goal("stuck_s", "longest time 2 cm off a reachable wrist target [s]", 0.1, "<=", _scalar("stuck_s"), ticks="stuck"),
     Goal("reachable_fraction", "wrist targets an IK check reaches", 0.995, ">=", _scalar("reachable_fraction")),
     Goal("limit_violations", "commands past a position or velocity limit", 0, "<=", _scalar("limit_violations")),
     Goal("acceleration_violations", "commands past an acceleration limit", 0, "<=", _scalar("acceleration_violations")),
@@ -199,10 +199,10 @@ def unmet_labels(row: dict) -> list[str]:
     explained, that cause's share where the goal is missed and over all ticks: ``"clip [self_collision 83 % vs 26
     %]"``."""
     why = row.get("main_causes", {})
-    return [f"{c} [{_percent(why[c])}]" if c in why else c for c in row["unmet_clips"]]
+    return [f"{c} [{_cause_text(why[c])}]" if c in why else c for c in row["unmet_clips"]]
 
 
-def _percent(why: dict) -> str:
+def _cause_text(why: dict) -> str:
     """``"self_collision 83 % vs 26 %"``: a main cause, its share where the goal is missed and over all ticks."""
     return f"{why['cause']} {100 * why['share']:.0f} % vs {100 * why['base']:.0f} %"
 
