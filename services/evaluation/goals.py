@@ -174,7 +174,7 @@ def goals_summary(per_clip: dict[str, dict]) -> dict:
         missed = [name for name in judged if not rows[name]["checks"][key]["met"]]
         if judged:
             per_goal[key] = {"judged": len(judged), "met": len(judged) - len(missed), "unmet_clips": missed}
-            why = {name: _main_cause(rows[name]["checks"][key]) for name in missed}
+            why = {name: main_cause(rows[name]["checks"][key]) for name in missed}
             if any(why.values()):  # the missed clips' main causes (causes.explain_misses), where explained
                 per_goal[key]["main_causes"] = {name: w for name, w in why.items() if w}
     return {
@@ -207,7 +207,7 @@ def _cause_text(why: dict) -> str:
     return f"{why['cause']} {100 * why['share']:.0f} % vs {100 * why['base']:.0f} %"
 
 
-def _main_cause(check: dict) -> dict | None:
+def main_cause(check: dict) -> dict | None:
     """``{"cause", "share", "base"}``: the main cause of a missed goal, its share where the goal is missed and its
     share of all scored ticks (None when the miss has no explanation)."""
     why = check.get("causes")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from services.evaluation.goals import GOAL_KEYS, JUDGED, clip_goals
+from services.evaluation.goals import GOAL_KEYS, JUDGED, clip_goals, main_cause, unmet_labels
 
 #: Compared metrics: (name in the report, statistic or None for a number, unit, the smallest change [unit] that
 #: counts as a move, so that the threshold's share of a near-zero value does not). All are lower-is-better.
@@ -135,17 +135,24 @@ def diff_runs(base: dict, new: dict, algos: list[str] | None = None, threshold: 
         "only_new": [c for c in b if c not in a],
         "settings": settings_diff(base, new),
         "threshold": threshold,
-        "goals": goals_diff({c: a[c] for c in shared}, {c: b[c] for c in shared}),
+        "goals": goals_diff({c: a[c] for c in shared}, {c: b[c] for c in shared}, _stored_goals(new)),
     }
 
 
-def goals_diff(base: dict[str, dict], new: dict[str, dict]) -> dict | None:
+def _stored_goals(report: dict) -> dict[str, dict]:
+    """Clip -> the goals block the run wrote (``goals.clip_goals``, with its misses' causes), where it wrote one."""
+    return {c["clip"]: c["goals"] for c in report["clips"] if isinstance(c.get("goals"), dict)}
+
+
+def goals_diff(base: dict[str, dict], new: dict[str, dict], new_goals: dict[str, dict] | None = None) -> dict | None:
     """The fidelity goals (:mod:`.goals`, default bars, recomputed from each run's metrics, so reports written
     before the goals existed compare too) on the clips both runs judged: how many meet every goal before and after,
     and per goal the clips it is newly met and newly missed on.
 
     Args:
         base, new: clip -> its ``algos`` block, the same clips in both.
+        new_goals: clip -> the goals block the new run wrote: a newly missed goal whose check there was judged at
+            the same bar and explained (``causes``) gets its main cause in ``newly_missed_causes``.
     """
     before = {c: clip_goals(algos) for c, algos in base.items()}
     after = {c: clip_goals(new[c]) for c in base}
@@ -159,12 +166,20 @@ def goals_diff(base: dict[str, dict], new: dict[str, dict]) -> dict | None:
             u, v = before[c]["checks"].get(key), after[c]["checks"].get(key)
             if u is not None and v is not None and u["met"] != v["met"]:
                 (met if v["met"] else missed).setdefault(key, []).append(c)
+    why: dict[str, dict[str, dict]] = {}
+    for key, clips in missed.items():
+        for c in clips:
+            stored = (new_goals or {}).get(c, {}).get("checks", {}).get(key, {})
+            cause = main_cause(stored) if stored.get("bar") == after[c]["checks"][key]["bar"] else None
+            if cause is not None:
+                why.setdefault(key, {})[c] = cause
     return {
         "algo": JUDGED,
         "clips": len(both),
         "all_met": [sum(before[c]["all_met"] for c in both), sum(after[c]["all_met"] for c in both)],
         "newly_met": met,
         "newly_missed": missed,
+        "newly_missed_causes": why,
     }
 
 
@@ -194,9 +209,11 @@ def format_diff(diff: dict) -> str:
     if g:
         u, v = g["all_met"]
         lines.append(f"fidelity goals ({g['algo']}): every goal met on {u} -> {v} of {g['clips']} shared clips")
-        for label, key in (("newly met", "newly_met"), ("newly missed", "newly_missed")):
-            for goal, clips in g[key].items():
-                lines.append(f"  {label}: {goal} on {', '.join(clips)}")
+        for goal, clips in g["newly_met"].items():
+            lines.append(f"  newly met: {goal} on {', '.join(clips)}")
+        for goal, clips in g["newly_missed"].items():
+            row = {"unmet_clips": clips, "main_causes": g.get("newly_missed_causes", {}).get(goal, {})}
+            lines.append(f"  newly missed: {goal} on {', '.join(unmet_labels(row))}")
     for x, ms in diff["means"].items():
         lines.append(f"{x}: means over clips, base -> new")
         for name, stat, unit, _ in METRICS:

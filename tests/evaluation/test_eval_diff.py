@@ -136,7 +136,18 @@ def test_the_fidelity_goals_before_and_after():
     assert g["clips"] == 3 and g["all_met"] == [2, 1]
     assert g["newly_met"] == {"stuck_s": ["b"]}
     assert g["newly_missed"] == {"stuck_s": ["a"], "wrist_p99_cm": ["c"], "elbow_behind_wqp_cm": ["a"]}
+    assert g["newly_missed_causes"] == {}  # the new run wrote no goals: nothing to say why
     text = format_diff(diff_runs(base, new))
     assert "fidelity goals (hqp-nullspace): every goal met on 2 -> 1 of 3 shared clips" in text
+    assert "  newly missed: stuck_s on a" in text
+    # the new run's own goals blocks: a miss it explained at the default bar gets its main cause, one judged at
+    # another bar (a --goals file) does not
+    why = {"main": "acceleration", "shares": {"acceleration": 1.0}, "base": {"acceleration": 0.37}}
+    new["clips"][2]["goals"] = {"checks": {"wrist_p99_cm": {"bar": 1.0, "met": False, "causes": why}}}
+    new["clips"][0]["goals"] = {"checks": {"stuck_s": {"bar": 0.5, "met": False, "causes": why}}}
+    g = diff_runs(base, new)["goals"]
+    assert g["newly_missed_causes"] == {"wrist_p99_cm": {"c": {"cause": "acceleration", "share": 1.0, "base": 0.37}}}
+    text = format_diff(diff_runs(base, new))
+    assert "  newly missed: wrist_p99_cm on c [acceleration 100 % vs 37 %]" in text
     assert "  newly missed: stuck_s on a" in text
     assert diff_runs(_report({"a": {"wqp": {}}}), _report({"a": {"wqp": {}}}))["goals"] is None  # no HQP: none
