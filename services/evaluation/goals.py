@@ -202,6 +202,16 @@ def unmet_labels(row: dict) -> list[str]:
     return [f"{c} [{_cause_text(why[c])}]" if c in why else c for c in row["unmet_clips"]]
 
 
+def missed_goal_labels(goals: dict) -> list[str]:
+    """The goals one clip missed (a :func:`clip_goals` block), each with its main cause where it was explained:
+    ``"wrist_rotation_p99_deg [acceleration 100 % vs 41 %]"``."""
+    labels = []
+    for key in goals["unmet"]:
+        why = main_cause(goals["checks"][key])
+        labels.append(f"{key} [{_cause_text(why)}]" if why else key)
+    return labels
+
+
 def _cause_text(why: dict) -> str:
     """``"self_collision 83 % vs 26 %"``: a main cause, its share where the goal is missed and over all ticks."""
     return f"{why['cause']} {100 * why['share']:.0f} % vs {100 * why['base']:.0f} %"

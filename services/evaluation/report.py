@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from services.evaluation.goals import GOALS, unmet_labels
+from services.evaluation.goals import GOALS, missed_goal_labels, unmet_labels
 from services.evaluation.runner import Trace
 from shared.targets import SIDES, elbow_of, wrist_of
 
@@ -177,7 +177,7 @@ def write_report(result: dict, traces: dict[tuple[str, str], Trace], out: Path) 
         lines.append(f"### {c['clip']} ({c['frames']} frames)")
         lines.append("")
         if "goals" in c:
-            lines += [f"Fidelity goals not met: {', '.join(c['goals']['unmet']) or 'none'}", ""]
+            lines += [f"Fidelity goals not met: {', '.join(missed_goal_labels(c['goals'])) or 'none'}", ""]
         for a, m in c["algos"].items():
             lines.append(
                 f"- {a}: wrist {_fmt(m['wrist_err_cm'])} / {_fmt(m['wrist_err_cm'], 'max')} cm, elbow "

@@ -175,6 +175,7 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     # the bar of the run, and the miss with its main cause
     label = f"{clip['clip']} [{main['cause']} {100 * main['share']:.0f} % vs {100 * main['base']:.0f} %]"
     assert f"| wrist_mean_cm | wrist error mean [cm] <= 0.001 | 0 of 1 | {label} |" in report
+    assert f"Fidelity goals not met: wrist_mean_cm [{label.split(' [')[1]}" in report  # the clip's own section
     assert "| elbow_p99_cm | elbow error p99 [cm] <= 6 | 1 of 1 |" in report
     bars.write_text("[bars]\nwrist_mean = 0.2\n")
     with pytest.raises(SystemExit) as exc:
