@@ -132,12 +132,14 @@ def miss_causes(
     figure: str,
     bar: float,
     peer: Trace | None = None,
+    causes: dict[str, dict[str, np.ndarray]] | None = None,
 ) -> dict:
     """What held the arms where a goal on a per-tick figure (a key of :data:`FIGURES`) is missed, both arms.
 
     Without ``peer``: on the ticks over ``bar`` (the figure's :data:`TICK_BARS` where it has one), each counted
     once. With ``peer`` (a goal against its mean, e.g. ``elbow_behind_wqp_cm``): on the ticks where ``trace``'s
-    error is above the peer's on the same tick, each weighed by that excess; ``bar`` is then unused.
+    error is above the peer's on the same tick, each weighed by that excess; ``bar`` is then unused. ``causes``:
+    :func:`tick_causes` of ``trace`` when the caller has them (one clip's misses share them).
 
     Returns:
         ``{"ticks_over", "ticks_scored", "weighed_by", "shares": {cause: its share of the over-bar ticks, or of the
@@ -145,7 +147,7 @@ def miss_causes(
         above its base (what the misses have most beyond the arm's usual; ``"none"`` when that is the ticks no cause
         flags; None when nothing was over)}``; ``shares`` and ``base`` hold ``"none"`` too.
     """
-    causes = tick_causes(trace, robot, report)
+    causes = tick_causes(trace, robot, report) if causes is None else causes
     reachable = tick_reachable(trace, report) if report is not None and figure == "stuck" else {}
     bar = TICK_BARS.get(figure, bar)
     over_n, scored_n, total = 0, 0, 0.0
@@ -186,11 +188,16 @@ def explain_misses(goals: dict, traces: dict[str, Trace], robot: RobotModel, rep
     """Add ``causes`` (:func:`miss_causes`) to each missed check of a clip's goals (``goals.clip_goals``) whose
     goal has a per-tick figure; ``traces``: algorithm -> its trace on the clip (the judged one's, and the peer's of
     a goal against a peer; a goal whose traces are missing is left unexplained)."""
+    judged = traces.get(goals["algo"])
+    if judged is None:
+        return
     goal = {g.key: g for g in GOALS if g.ticks}
+    causes = None  # the judged trace's flags, computed once for all of the clip's misses
     for key in goals["unmet"]:
         g = goal.get(key)
-        if g is None or goals["algo"] not in traces or (g.peer is not None and g.peer not in traces):
+        if g is None or (g.peer is not None and g.peer not in traces):
             continue
+        causes = tick_causes(judged, robot, report) if causes is None else causes
         check = goals["checks"][key]
         peer = traces[g.peer] if g.peer is not None else None
-        check["causes"] = miss_causes(traces[goals["algo"]], robot, report, g.ticks, check["bar"], peer)
+        check["causes"] = miss_causes(judged, robot, report, g.ticks, check["bar"], peer, causes)

@@ -67,6 +67,19 @@ def _behind(peer: str, metric: str) -> Callable[[dict], float | None]:
     return value
 
 
+def _behind_goal(part: str, peer: str, whose: str, bar: float, op: str) -> Goal:
+    """``<part>_behind_<peer>_cm``: the judged algorithm's ``part`` (wrist or elbow) error mean minus the peer's."""
+    return Goal(
+        f"{part}_behind_{peer}_cm",
+        f"{part} mean minus {whose} [cm]",
+        bar,
+        op,
+        _behind(peer, f"{part}_err_cm"),
+        ticks=f"{part}_cm",
+        peer=peer,
+    )
+
+
 GOALS: tuple[Goal, ...] = (
     Goal("wrist_mean_cm", "wrist error mean [cm]", 0.1, "<=", _stat("wrist_err_cm", "mean"), ticks="wrist_cm"),
     Goal("wrist_p99_cm", "wrist error p99 [cm]", 1.0, "<=", _stat("wrist_err_cm", "p99"), ticks="wrist_cm"),
@@ -86,33 +99,9 @@ GOALS: tuple[Goal, ...] = (
     Goal("acceleration_violations", "commands past an acceleration limit", 0, "<=", _scalar("acceleration_violations")),
     Goal("self_collisions", "steps with an arm in penetration", 0, "<=", _scalar("self_collisions")),
     Goal("min_clearance_cm", "smallest arm clearance [cm]", 1.0, ">=", _scalar("min_clearance_cm")),
-    Goal(
-        "elbow_behind_wqp_cm",
-        "elbow mean minus the WQP's [cm]",
-        ELBOW_TIE_CM,
-        "<=",
-        _behind("wqp", "elbow_err_cm"),
-        ticks="elbow_cm",
-        peer="wqp",
-    ),
-    Goal(
-        "elbow_behind_mink_cm",
-        "elbow mean minus mink's [cm]",
-        ELBOW_TIE_CM,
-        "<=",
-        _behind("mink", "elbow_err_cm"),
-        ticks="elbow_cm",
-        peer="mink",
-    ),
-    Goal(
-        "wrist_behind_mink_cm",
-        "wrist mean minus mink's [cm]",
-        0.0,
-        "<",
-        _behind("mink", "wrist_err_cm"),
-        ticks="wrist_cm",
-        peer="mink",
-    ),
+    _behind_goal("elbow", "wqp", "the WQP's", ELBOW_TIE_CM, "<="),
+    _behind_goal("elbow", "mink", "mink's", ELBOW_TIE_CM, "<="),
+    _behind_goal("wrist", "mink", "mink's", 0.0, "<"),
 )
 GOAL_KEYS = tuple(g.key for g in GOALS)
 
