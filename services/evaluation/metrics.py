@@ -212,6 +212,19 @@ def frame_errors(trace: Trace, names) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def frame_rotation_errors(trace: Trace) -> np.ndarray:
+    """Geodesic angles [deg] of the robot's wrists at each frame's own instant against that frame's orientation
+    (as :func:`frame_errors` for positions: what the operator's hand and the robot's showed at the same time,
+    whatever the pipeline predicted between frames)."""
+    idx = trace.frame_tick - 1
+    keep = idx >= 0
+    ref, got, ok = {}, {}, {}
+    for n in WRISTS:
+        if n in trace.frame_R and n in trace.kin_R and len(idx):
+            ref[n], got[n], ok[n] = trace.frame_R[n][keep], trace.kin_R[n][idx[keep]], trace.frame_rot[n][keep]
+    return rotation_errors(ref, got, ok)
+
+
 def limit_violations(trace: Trace, robot: RobotModel, tol: float = 1e-9) -> int:
     """Count of (tick, joint) pairs outside the position or velocity limits."""
     pos = (trace.q < robot.lower - tol) | (trace.q > robot.upper + tol)
@@ -299,6 +312,8 @@ def trace_metrics(
         "wrist_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, WRISTS)),
         "elbow_err_cm_sim": _stats(cm * position_errors(trace.ref_p, trace.sim_p, trace.ref_ok, ELBOWS)),
         "wrist_rot_err_deg": _stats(rotation_errors(trace.ref_R, trace.kin_R, rotation_ok(trace))),
+        "wrist_rot_err_deg_sim": _stats(rotation_errors(trace.ref_R, trace.sim_R, rotation_ok(trace))),
+        "wrist_rot_frame_err_deg": _stats(frame_rotation_errors(trace)),
         "wrist_frame_err_cm": _stats(cm * frame_errors(trace, WRISTS)),
         "elbow_frame_err_cm": _stats(cm * frame_errors(trace, ELBOWS)),
         "solve_ms": {

@@ -23,6 +23,7 @@ METRICS: tuple[tuple[str, str | None, str, float], ...] = (
     ("wrist_rot_err_deg", "p99", "deg", 0.5),
     ("wrist_err_cm_sim", "mean", "cm", 0.01),
     ("elbow_err_cm_sim", "mean", "cm", 0.01),
+    ("wrist_rot_err_deg_sim", "p99", "deg", 0.5),
     ("stuck_s", None, "s", 0.01),
     ("self_collisions", None, "ticks", 0.5),
     ("limit_violations", None, "ticks", 0.5),

@@ -66,7 +66,8 @@ class Trace:
             clearance ticks). dt: control period [s].
         frame_tick: (F,) index of the scored tick each frame arrived on; frame_seq: (F,) its seq;
             frame_p: target -> (F, 3) the frame's own target position [m] (no extrapolation); frame_ok:
-            target -> (F,) valid.
+            target -> (F,) valid. frame_R: wrist -> (F, 3, 3) the frame's own wrist orientation; frame_rot: wrist ->
+            (F,) valid and carrying an orientation to track.
         holds: (K, n) int8, what held each joint's raw velocity on each tick (``SolverCore.tick_holds`` codes:
             free, acceleration band, speed cap, braking to a stop); collision_held: (K, n) bool, the joints a
             binding self-collision damper row acted on. Both empty for a peer without them (mink).
@@ -96,6 +97,8 @@ class Trace:
     frame_seq: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     frame_p: dict[str, np.ndarray] = field(default_factory=dict)
     frame_ok: dict[str, np.ndarray] = field(default_factory=dict)
+    frame_R: dict[str, np.ndarray] = field(default_factory=dict)
+    frame_rot: dict[str, np.ndarray] = field(default_factory=dict)
     ref_rot: dict[str, np.ndarray] = field(default_factory=dict)
     dt: float = 0.002
     counts: dict[str, int] = field(default_factory=dict)
@@ -236,6 +239,8 @@ class _Recorder:
         self.frame_seq: list[int] = []
         self.frame_p = {n: [] for n in TARGET_NAMES}
         self.frame_ok = {n: [] for n in TARGET_NAMES}
+        self.frame_R = {n: [] for n in WRISTS}
+        self.frame_rot = {n: [] for n in WRISTS}
         self.policy_p: dict[str, list] = {n: [] for n in ELBOWS}
         #: the solver's own account of what held each joint, per tick (a peer without ``tick_holds`` has none)
         self.holds: list[tuple[np.ndarray, np.ndarray]] | None = [] if hasattr(core, "tick_holds") else None
@@ -248,6 +253,9 @@ class _Recorder:
             tg = msg.targets.get(n)
             self.frame_ok[n].append(tg is not None and tg.valid)
             self.frame_p[n].append(tg.p if tg is not None else _NAN3)
+            if n in self.frame_R:
+                self.frame_rot[n].append(tg is not None and tg.valid and tg.use_rotation)
+                self.frame_R[n].append(quat_to_matrix(tg.q) if tg is not None else np.eye(3))
 
     def tick(self, t: float, settle: float, dt: float, cmd) -> None:
         """Record the command of tick ``t`` [s] (clip time ``t - settle``)."""
@@ -324,6 +332,8 @@ class _Recorder:
             frame_seq=np.asarray(self.frame_seq, dtype=int),
             frame_p=arr(self.frame_p),
             frame_ok=arr(self.frame_ok),
+            frame_R=arr(self.frame_R),
+            frame_rot=arr(self.frame_rot),
             dt=dt,
             counts=dict(self.core.counts),
             policy_p={n: np.asarray(v) for n, v in self.policy_p.items() if np.isfinite(v).any()},

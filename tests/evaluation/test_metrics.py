@@ -57,6 +57,7 @@ def synthetic_trace(
         status=np.array(["ok"] * K),
         res1=np.zeros(K),
         sim_p={n: ref_p[n] + 2.0 * offsets.get(n, np.zeros(3)) for n in TARGET_NAMES},
+        sim_R={n: ref_R[n] @ dR @ dR for n in WRISTS},  # the sim turned twice as far off
     )
 
 
@@ -65,6 +66,7 @@ def test_exact_tracking_gives_zero_errors(robot):
     for key in ("wrist_err_cm", "elbow_err_cm", "wrist_err_cm_sim", "elbow_err_cm_sim"):
         assert m[key]["mean"] == pytest.approx(0.0, abs=1e-12) and m[key]["max"] == pytest.approx(0.0, abs=1e-12)
     assert m["wrist_rot_err_deg"]["max"] == pytest.approx(0.0, abs=1e-5)
+    assert m["wrist_rot_err_deg_sim"]["max"] == pytest.approx(0.0, abs=1e-5)
     assert m["limit_violations"] == 0
 
 
@@ -78,6 +80,7 @@ def test_constant_offsets_are_reported_exactly(robot):
     assert m["elbow_err_cm"]["mean"] == pytest.approx(10.0, rel=1e-9)
     assert m["elbow_err_cm_sim"]["mean"] == pytest.approx(20.0, rel=1e-9)  # sim made twice the offset
     assert m["wrist_rot_err_deg"]["mean"] == pytest.approx(7.5, rel=1e-6)
+    assert m["wrist_rot_err_deg_sim"]["mean"] == pytest.approx(15.0, rel=1e-6)
     assert m["solve_ms"]["p50"] == pytest.approx(np.median(tr.solve_ms))
 
 

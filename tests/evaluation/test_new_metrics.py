@@ -266,16 +266,18 @@ def test_missing_mink_is_a_one_line_error(monkeypatch, tmp_path):
 
 def test_frame_errors_compare_the_robot_with_each_frame_at_its_own_instant(robot17):
     """Reachable FK targets with exact velocities: the robot is at every frame when it arrives
-    (frame error ~0). The same frames with velocities that mispredict between them (doubled, or
+    (frame errors ~0, positions and hand orientations). The same frames with velocities that mispredict between them (doubled, or
     none): the robot lags the frames and the frame error says so, however the reference is built."""
     from dataclasses import replace
 
     targets = fk_targets(robot17, np.arange(0.0, DURATION, 1.0 / RATE))
     exact = trace_metrics(run_algorithm(robot17, targets, "hqp-nullspace", qp="daqp"), robot17)
     assert exact["wrist_frame_err_cm"]["max"] < 0.02, exact["wrist_frame_err_cm"]
+    assert exact["wrist_rot_frame_err_deg"]["max"] < 0.05, exact["wrist_rot_frame_err_deg"]  # measured 0.014 deg
     for k in (0.0, 2.0):
         off = [replace(tt, targets={n: replace(t, v=k * t.v, w=k * t.w) for n, t in tt.targets.items()})
                for tt in targets]  # fmt: skip
         m = trace_metrics(run_algorithm(robot17, off, "hqp-nullspace", qp="daqp"), robot17)
         assert m["wrist_frame_err_cm"]["mean"] > 20 * exact["wrist_frame_err_cm"]["mean"], (k, m["wrist_frame_err_cm"])
         assert m["elbow_frame_err_cm"]["mean"] > 10 * exact["elbow_frame_err_cm"]["mean"], (k, m["elbow_frame_err_cm"])
+        assert m["wrist_rot_frame_err_deg"]["mean"] > 0.5, (k, m["wrist_rot_frame_err_deg"])  # measured 0.71 deg
