@@ -200,6 +200,9 @@ class _Hierarchy:
         name, ln = self.nxt("joint name")
         if name == "{":
             raise self.err(f"{kind} without a name", ln)
+        # A name runs to the end of its line: 3ds Max Biped rigs name joints "Bip01 L UpperArm".
+        while self.pos < len(self.toks) and self.toks[self.pos][1] == ln and self.toks[self.pos][0] != "{":
+            name = f"{name} {self.nxt('joint name')[0]}"
         if name in (j.name for j in self.joints):
             raise self.err(f"duplicated joint name {name!r}", ln)
         if self.nxt("{")[0] != "{":

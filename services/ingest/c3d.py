@@ -46,6 +46,9 @@ class MarkerMap:
         pelvis: "left_front", "right_front", "left_back", "right_back" -> marker (ASIS/PSIS), or empty.
         thorax: "top" / "bottom" -> markers (e.g. sternum notch + C7 / xiphoid + T10), or empty.
         shoulder_drop: shoulder centre = acromion - drop * |acromion - elbow| * z_root.
+        elbow_offset: [m] from a lone lateral epicondyle marker to the elbow centre (half the elbow's width plus
+            the marker's radius), along the flexion axis; 0 when the elbow markers straddle the joint (their mean
+            is the centre).
     """
 
     name: str
@@ -53,6 +56,7 @@ class MarkerMap:
     pelvis: dict[str, str] = field(default_factory=dict)
     thorax: dict[str, tuple[str, ...]] = field(default_factory=dict)
     shoulder_drop: float = 0.17
+    elbow_offset: float = 0.0
 
     def markers(self) -> set[str]:
         out = {m for ms in self.joints.values() for m in ms} | set(self.pelvis.values())
@@ -97,7 +101,33 @@ QUALISYS_ISB = MarkerMap(
     {"top": ("SNJ", "CV7"), "bottom": ("SXS", "TV8")},
 )
 
-BUILTIN_MARKER_MAPS: tuple[MarkerMap, ...] = (VICON_SHOULDER, QUALISYS_ISB)
+
+def _vicon_full_body(name: str, pelvis: tuple[str, str, str, str]) -> MarkerMap:
+    """Vicon's full-body marker sets: Plug-in Gait names on the trunk, head and arms (the elbow has only its lateral
+    epicondyle marker, moved to the centre by half a typical adult elbow width, 7 cm, plus a 14 mm marker's radius;
+    the wrist is the mean of the radial and ulnar styloid bars, the hand tip the second metacarpal head); ``pelvis``
+    names the left / right front and back markers."""
+    arm = (("shoulder", ("SHO",)), ("elbow", ("ELB",)), ("wrist", ("WRA", "WRB")), ("hand", ("FIN",)))
+    return MarkerMap(
+        name,
+        {
+            "chest": ("CLAV", "STRN", "C7", "T10"),
+            "neck": ("CLAV", "C7"),
+            "head": ("LFHD", "LBHD", "RFHD", "RBHD"),
+            **{f"{side}_{b}": tuple(S + m for m in ms) for side, S in (("left", "L"), ("right", "R")) for b, ms in arm},
+        },
+        dict(zip(_PELVIS_KEYS, pelvis)),
+        {"top": ("CLAV", "C7"), "bottom": ("STRN", "T10")},
+        elbow_offset=0.042,
+    )
+
+
+#: Vicon Plug-in Gait (full body), the most common clinical and lab marker set: pelvis on ASIS / PSIS.
+PLUG_IN_GAIT = _vicon_full_body("plug_in_gait", ("LASI", "RASI", "LPSI", "RPSI"))
+#: The CMU Graphics Lab motion capture database's 41-marker set: Plug-in Gait names, pelvis on four waist markers.
+CMU_WAIST = _vicon_full_body("cmu_41", ("LFWT", "RFWT", "LBWT", "RBWT"))
+
+BUILTIN_MARKER_MAPS: tuple[MarkerMap, ...] = (VICON_SHOULDER, QUALISYS_ISB, PLUG_IN_GAIT, CMU_WAIST)
 
 
 def load_marker_map(path: str | Path) -> MarkerMap:
@@ -105,6 +135,7 @@ def load_marker_map(path: str | Path) -> MarkerMap:
 
         name = "my_lab"
         shoulder_drop = 0.17
+        elbow_offset = 0.0             # [m], a lone lateral elbow marker to the centre
         [joints]                       # canonical bone -> marker or list of markers (mean)
         right_elbow = ["RELB_LAT", "RELB_MED"]
         right_wrist = ["RWRA", "RWRB"]
@@ -139,12 +170,16 @@ def load_marker_map(path: str | Path) -> MarkerMap:
     thorax = d.get("thorax", {})
     if thorax and set(thorax) != {"top", "bottom"}:
         raise C3dError(f"marker map {path}: [thorax] needs 'top' and 'bottom'")
+    elbow_offset = d.get("elbow_offset", 0.0)
+    if isinstance(elbow_offset, bool) or not isinstance(elbow_offset, int | float) or not 0.0 <= elbow_offset <= 0.1:
+        raise C3dError(f"marker map {path}: elbow_offset must be a number of metres in [0, 0.1], got {elbow_offset!r}")
     return MarkerMap(
         str(d.get("name", path.stem)),
         {b: names(v, f"joints.{b}") for b, v in joints.items()},
         {k: str(v) for k, v in pelvis.items()},
         {k: names(v, f"thorax.{k}") for k, v in thorax.items()},
         float(d.get("shoulder_drop", 0.17)),
+        float(elbow_offset),
     )
 
 
@@ -280,6 +315,30 @@ class _Landmarks:
         return bottom, frame_from_axes(top - bottom, left), "thorax"
 
 
+#: Sine of the elbow flexion (about 14 deg) below which the lateral marker's shift to the centre fades out.
+ELBOW_AXIS_SINE = 0.25
+
+
+def _medial_elbows(joints: dict[str, np.ndarray], offset: float) -> dict[str, np.ndarray]:
+    """Lateral epicondyle marker -> elbow centre: moved ``offset`` [m] medially along the flexion axis.
+
+    The axis is normal to the plane of the upper arm (acromion -> marker) and the forearm (marker -> wrist), pointing
+    laterally (the left arm's to the left). Below :data:`ELBOW_AXIS_SINE` of flexion the shift fades out with the
+    sine, as the arm straightens: there the axis is undefined, and the elbow sits on the shoulder-wrist line whatever
+    its swivel.
+    """
+    out = dict(joints)
+    for s, lateral in (("left", -1.0), ("right", 1.0)):
+        sh, el, wr = (out.get(f"{s}_{b}") for b in ("shoulder", "elbow", "wrist"))
+        if sh is None or el is None or wr is None or not offset:
+            continue
+        u, f = el - sh, wr - el
+        n = np.cross(u, f) / (np.linalg.norm(u, axis=1) * np.linalg.norm(f, axis=1))[:, None]  # |n| = sin(flexion)
+        n /= np.maximum(np.linalg.norm(n, axis=1), ELBOW_AXIS_SINE)[:, None]
+        out[f"{s}_elbow"] = el - offset * lateral * n
+    return out
+
+
 def _lower_shoulders(joints: dict[str, np.ndarray], z_root: np.ndarray, drop: float) -> dict[str, np.ndarray]:
     """Acromion -> gleno-humeral centre: lowered along the root z (T, 3) by drop * |acromion - elbow|."""
     out = dict(joints)
@@ -326,7 +385,7 @@ def read_c3d_clip(
     up, A = up_axis(up, np.array([[0.0, 0.0, 1.0]]) if trunk is None else trunk, str(path), C3dError)
     found = found.rotated(A)
     root_p, root_R, root_from = found.root_frame()
-    world = _lower_shoulders(found.joints, root_R[:, :, 2], mmap.shoulder_drop)
+    world = _lower_shoulders(_medial_elbows(found.joints, mmap.elbow_offset), root_R[:, :, 2], mmap.shoulder_drop)
     meta = {"marker_map": mmap.name, "prefix": pre, "units": unit, "up": up, "root_from": root_from}
     return clip_from_file(path, "c3d", rate, world, root_p, root_R, None, t_start, meta)
 

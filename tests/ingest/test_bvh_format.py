@@ -29,6 +29,44 @@ XSENS = {
        (("Shoulder", "Shoulder"), ("UpperArm", "UpperArm"), ("LowerArm", "ForeArm"), ("Hand", "Hand"),
         ("UpperLeg", "UpperLeg"), ("LowerLeg", "LowerLeg"), ("Foot", "Foot"), ("Toes", "Toe"))},
 }  # fmt: skip
+SIDES = (("L", "Left", "l"), ("R", "Right", "r"))
+LIMBS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "Toes")
+
+
+def _rig(root: str, trunk: tuple[str, ...], limb) -> dict[str, str]:
+    """Bandai name -> another rig's: ``trunk`` names Hips, Spine, Chest, Neck, Head; ``limb(S, Side, s, bone)``."""
+    out = {"joint_Root": root, **dict(zip(("Hips", "Spine", "Chest", "Neck", "Head"), trunk))}
+    return out | {f"{b}_{S}": limb(S, Side, s, k) for S, Side, s in SIDES for k, b in enumerate(LIMBS)}
+
+
+BIPED = _rig(
+    "Bip01",
+    ("Bip01 Pelvis", "Bip01 Spine", "Bip01 Spine1", "Bip01 Neck", "Bip01 Head"),
+    lambda S, _, __, k: f"Bip01 {S} " + ("Clavicle", "UpperArm", "Forearm", "Hand", "Thigh", "Calf", "Foot", "Toe0")[k],
+)
+OPTITRACK = _rig(
+    "Root",
+    ("Hip", "Ab", "Chest", "Neck", "Head"),
+    lambda S, _, __, k: S + ("Shoulder", "UArm", "FArm", "Hand", "Thigh", "Shin", "Foot", "Toe")[k],
+)
+SMPL = _rig(
+    "root",
+    ("Pelvis", "Spine1", "Spine3", "Neck", "Head"),
+    lambda S, _, __, k: f"{S}_" + ("Collar", "Shoulder", "Elbow", "Wrist", "Hip", "Knee", "Ankle", "Foot")[k],
+)
+UNREAL = _rig(
+    "root",
+    ("pelvis", "spine_01", "spine_03", "neck_01", "head"),
+    lambda _, __, s, k: ("clavicle", "upperarm", "lowerarm", "hand", "thigh", "calf", "foot", "ball")[k] + f"_{s}",
+)
+VROID = _rig(
+    "Root",
+    ("J_Bip_C_Hips", "J_Bip_C_Spine", "J_Bip_C_Chest", "J_Bip_C_Neck", "J_Bip_C_Head"),
+    lambda S, _, __, k: (
+        f"J_Bip_{S}_" + ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "ToeBase")[k]
+    ),
+)
+UNITY = _rig("Root", ("Hips", "Spine", "Chest", "Neck", "Head"), lambda _, Side, __, k: Side + LIMBS[k])
 
 
 @pytest.fixture(scope="module")
@@ -101,6 +139,12 @@ def assert_same_clip(a, b, tol=2e-6):
         ({"rename": CMU, "scale": 0.01, "z_up": True}, {"skeleton_map": "cmu", "units": "m", "up": "z"}),
         ({"rename": MIXAMO}, {"skeleton_map": "mixamo"}),
         ({"rename": XSENS, "scale": 10.0}, {"skeleton_map": "xsens_mvn", "units": "mm"}),
+        ({"rename": BIPED}, {"skeleton_map": "biped"}),
+        ({"rename": OPTITRACK, "scale": 0.01}, {"skeleton_map": "optitrack", "units": "m"}),
+        ({"rename": SMPL, "scale": 0.01, "z_up": True}, {"skeleton_map": "smpl", "up": "z"}),
+        ({"rename": UNREAL, "z_up": True}, {"skeleton_map": "unreal", "up": "z"}),
+        ({"rename": VROID, "scale": 0.01}, {"skeleton_map": "unity_humanoid"}),
+        ({"rename": UNITY}, {"skeleton_map": "unity_humanoid"}),
     ],
 )
 def test_variants_read_back_identically(tmp_path, bandai, kwargs, expect):

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import ezc3d
 import numpy as np
 import pytest
 
 from services.ingest import load_clip
-from services.ingest.c3d import C3dError
+from services.ingest.c3d import BUILTIN_MARKER_MAPS, C3dError
 
 VICON = "ezc3d-testFiles_Vicon.c3d"
 QUALISYS = "ezc3d-testFiles_Qualisys.c3d"
@@ -90,6 +91,43 @@ def test_qualisys_full_body(c3d_dir):
     assert np.dot(travel / np.linalg.norm(travel), x_axis.mean(axis=0)) > 0.8
 
 
+#: Qualisys ISB label -> the Vicon full-body (Plug-in Gait) marker on the same landmark; the pelvis keys are filled in
+#: per set. The medial epicondyles and fifth metacarpals have no Plug-in Gait marker: they are renamed out of the way.
+ISB_TO_VICON = {
+    "SNJ": "CLAV", "SXS": "STRN", "CV7": "C7", "TV8": "T10", "L_HDF": "LFHD", "L_HDB": "LBHD", "R_HDF": "RFHD",
+    "R_HDB": "RBHD",
+    **{f"{S}_{isb}": f"{S}{pig}" for S in "LR" for isb, pig in
+       (("SAJ", "SHO"), ("HLE", "ELB"), ("RSP", "WRA"), ("UHE", "WRB"), ("HM2", "FIN"), ("HME", "XME"),
+        ("HM5", "XM5"))},
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name, front, back", [("plug_in_gait", "ASI", "PSI"), ("cmu_41", "FWT", "BWT")])
+def test_vicon_full_body_marker_sets(tmp_path, c3d_dir, name, front, back):
+    """The Qualisys walk relabelled as a Vicon full-body set reads back with that set's map: the same root and wrists
+    (the same markers), and the elbow centre from its lateral epicondyle marker alone near the ISB one, the mean of
+    both epicondyles (measured: median 1.5 / 0.9 cm left / right; the marker itself is 4.5 / 4.2 cm off)."""
+    c = ezc3d.c3d(str(c3d_dir / QUALISYS))
+    rename = ISB_TO_VICON | {f"{S}_IAS": f"{S}{front}" for S in "LR"} | {f"{S}_IPS": f"{S}{back}" for S in "LR"}
+    labels = [s.strip() for s in c["parameters"]["POINT"]["LABELS"]["value"]]
+    c["parameters"]["POINT"]["LABELS"]["value"] = [rename.get(lb, lb) for lb in labels]
+    out = tmp_path / f"{name}.c3d"
+    c.write(str(out))
+    isb, vicon = load_clip(c3d_dir / QUALISYS), load_clip(out)
+    mmap = next(m for m in BUILTIN_MARKER_MAPS if m.name == name)
+    marker = load_clip(out, skeleton_map=replace(mmap, elbow_offset=0.0))
+    assert vicon.meta["marker_map"] == name and vicon.meta["root_from"] == isb.meta["root_from"] == "pelvis"
+    assert np.allclose(vicon.root_p, isb.root_p, equal_nan=True)
+    for s in ("left", "right"):
+        ok = isb.valid[f"{s}_wrist"] & vicon.valid[f"{s}_elbow"] & isb.valid[f"{s}_elbow"]
+        assert ok.mean() > 0.9
+        assert np.allclose(vicon.positions[f"{s}_wrist"][ok], isb.positions[f"{s}_wrist"][ok])
+        ref = isb.positions[f"{s}_elbow"][ok]
+        centre = np.median(np.linalg.norm(vicon.positions[f"{s}_elbow"][ok] - ref, axis=1))
+        lateral = np.median(np.linalg.norm(marker.positions[f"{s}_elbow"][ok] - ref, axis=1))
+        assert centre < 0.02 and lateral > 0.035, (centre, lateral)
+
+
 def test_custom_marker_map_and_errors(tmp_path, c3d_dir):
     mp = tmp_path / "map.toml"
     mp.write_text(
@@ -105,6 +143,9 @@ def test_custom_marker_map_and_errors(tmp_path, c3d_dir):
         load_clip(c3d_dir / VICON, skeleton_map=mp)
     mp.write_text('[joints]\nleft_toe = "X"\n')
     with pytest.raises(C3dError, match="unknown joints"):
+        load_clip(c3d_dir / VICON, skeleton_map=mp)
+    mp.write_text('elbow_offset = 4.2\n[joints]\nright_elbow = "EPICl"\nright_wrist = "WRIST"\n')
+    with pytest.raises(C3dError, match=r"elbow_offset must be a number of metres in \[0, 0.1\], got 4.2"):
         load_clip(c3d_dir / VICON, skeleton_map=mp)
     bad = tmp_path / "bad.c3d"
     bad.write_bytes(b"\x00" * 100)
