@@ -15,6 +15,12 @@ from services.ingest.rotations import Y_UP_TO_Z_UP
 
 #: Metres per file unit.
 UNIT_SCALES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+#: Shoulder -> elbow -> wrist lengths [m] a unit must give to be taken for the file's: people from a child to a tall
+#: adult (0.45-0.65 m for adults).
+PLAUSIBLE_ARM = (0.25, 1.0)
+#: The arm length [m] a file in none of the units is scaled to (``"scaled"``): the CMU database's BVH conversions use
+#: 1/0.45 inch (an arm of 7.5 units), game rigs their own.
+NOMINAL_ARM = 0.55
 #: Canonical bones above the pelvis, highest first: the first one mapped gives the trunk direction.
 TRUNK_TOPS = ("head", "neck", "chest", "spine")
 
@@ -25,15 +31,20 @@ def unit_scale(
     """The file's length unit and its size in metres.
 
     Args:
-        units: "m", "cm", "mm", "in", or "auto" (needs ``arm_length``).
+        units: "m", "cm", "mm", "in", or "auto" (needs ``arm_length``): the first of m, cm, mm, in that makes the arm
+            :data:`PLAUSIBLE_ARM`, else ``"scaled"``, the arm at :data:`NOMINAL_ARM` (the retargeting maps the
+            operator's reach onto the robot's, so a rig's own unit only sets the speeds the checks see).
         arm_length: shoulder -> elbow -> wrist length [file units]; adults have 0.45-0.65 m.
         where: what the unit came from, for the error text.
 
     Returns:
         (unit, metres per unit).
     """
-    if units == "auto" and arm_length is not None:
-        units = "m" if arm_length < 2.0 else "cm" if arm_length < 150.0 else "mm"
+    if units == "auto" and arm_length is not None and arm_length > 0.0:
+        lo, hi = PLAUSIBLE_ARM
+        units = next((u for u, s in UNIT_SCALES.items() if lo <= arm_length * s <= hi), "scaled")
+        if units == "scaled":
+            return units, NOMINAL_ARM / arm_length
     if units not in UNIT_SCALES:
         raise error(f"{where} {units!r}; choose auto or one of {list(UNIT_SCALES)}")
     return units, UNIT_SCALES[units]

@@ -266,8 +266,9 @@ def test_missing_mink_is_a_one_line_error(monkeypatch, tmp_path):
 
 def test_frame_errors_compare_the_robot_with_each_frame_at_its_own_instant(robot17):
     """Reachable FK targets with exact velocities: the robot is at every frame when it arrives
-    (frame errors ~0, positions and hand orientations). The same frames with velocities that mispredict between them (doubled, or
-    none): the robot lags the frames and the frame error says so, however the reference is built."""
+    (frame errors ~0, positions and hand orientations). The same frames with velocities that
+    mispredict between them (doubled, or none): the robot lags the frames and the frame error says
+    so, however the reference is built."""
     from dataclasses import replace
 
     targets = fk_targets(robot17, np.arange(0.0, DURATION, 1.0 / RATE))

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from services.ingest import ClipError, load_clip
+from services.ingest.body_frame import NOMINAL_ARM, arm_length
 from services.ingest.bvh import BvhData, BvhJoint, parse_bvh, write_bvh
 from services.ingest.errors import BvhError, SkeletonMapError
 from services.ingest.rotations import Y_UP_TO_Z_UP, euler_to_matrix, matrix_to_euler
@@ -39,6 +40,11 @@ def _rig(root: str, trunk: tuple[str, ...], limb) -> dict[str, str]:
     return out | {f"{b}_{S}": limb(S, Side, s, k) for S, Side, s in SIDES for k, b in enumerate(LIMBS)}
 
 
+CMU_MAX = _rig(
+    "root",
+    ("Hips", "lowerback", "Chest2", "Neck", "Head"),
+    lambda _, Side, __, k: Side + ("Collar", "Shoulder", "Elbow", "Wrist", "Hip", "Knee", "Ankle", "Toe")[k],
+)
 BIPED = _rig(
     "Bip01",
     ("Bip01 Pelvis", "Bip01 Spine", "Bip01 Spine1", "Bip01 Neck", "Bip01 Head"),
@@ -139,6 +145,7 @@ def assert_same_clip(a, b, tol=2e-6):
         ({"rename": CMU, "scale": 0.01, "z_up": True}, {"skeleton_map": "cmu", "units": "m", "up": "z"}),
         ({"rename": MIXAMO}, {"skeleton_map": "mixamo"}),
         ({"rename": XSENS, "scale": 10.0}, {"skeleton_map": "xsens_mvn", "units": "mm"}),
+        ({"rename": CMU_MAX}, {"skeleton_map": "cmu_max"}),
         ({"rename": BIPED}, {"skeleton_map": "biped"}),
         ({"rename": OPTITRACK, "scale": 0.01}, {"skeleton_map": "optitrack", "units": "m"}),
         ({"rename": SMPL, "scale": 0.01, "z_up": True}, {"skeleton_map": "smpl", "up": "z"}),
@@ -155,6 +162,19 @@ def test_variants_read_back_identically(tmp_path, bandai, kwargs, expect):
         assert clip.meta[k] == v, (k, clip.meta[k])
     assert clip.meta["position_mode"] == "add"
     assert_same_clip(clip, ref)
+
+
+def test_a_rig_in_no_known_unit_is_scaled_to_a_nominal_arm(tmp_path, bandai):
+    """CMU's 3ds Max BVH release measures in 1/0.45 inch (an arm of about 8 units): no unit makes that a human arm,
+    so the clip is scaled to NOMINAL_ARM, the same motion at another size (was read as centimetres: an 8 cm arm the
+    calibration rejected, not one frame retargeted)."""
+    _path, data, ref = bandai
+    clip = load_clip(write_bvh(tmp_path / "cmu.bvh", reencode(data, rename=CMU_MAX, scale=0.01 / 0.056444)))
+    assert clip.meta["skeleton_map"] == "cmu_max" and clip.meta["units"] == "scaled"
+    k = NOMINAL_ARM / arm_length(ref.positions)
+    assert arm_length(clip.positions) == pytest.approx(NOMINAL_ARM, rel=1e-9)
+    for bone in ("left_wrist", "right_elbow", "head"):
+        assert np.allclose(clip.positions[bone], k * ref.positions[bone], atol=1e-6), bone
 
 
 def test_frame_rate_from_frame_time(tmp_path, bandai):
