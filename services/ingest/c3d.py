@@ -333,7 +333,8 @@ def _medial_elbows(joints: dict[str, np.ndarray], offset: float) -> dict[str, np
         if sh is None or el is None or wr is None or not offset:
             continue
         u, f = el - sh, wr - el
-        n = np.cross(u, f) / (np.linalg.norm(u, axis=1) * np.linalg.norm(f, axis=1))[:, None]  # |n| = sin(flexion)
+        lengths = np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(f, axis=1), 1e-12)  # coincident markers
+        n = np.cross(u, f) / lengths[:, None]  # |n| = sin(flexion)
         n /= np.maximum(np.linalg.norm(n, axis=1), ELBOW_AXIS_SINE)[:, None]
         out[f"{s}_elbow"] = el - offset * lateral * n
     return out
