@@ -34,45 +34,48 @@ SIDES = (("L", "Left", "l"), ("R", "Right", "r"))
 LIMBS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "Toes")
 
 
-def _rig(root: str, trunk: tuple[str, ...], limb) -> dict[str, str]:
-    """Bandai name -> another rig's: ``trunk`` names Hips, Spine, Chest, Neck, Head; ``limb(S, Side, s, bone)``."""
-    out = {"joint_Root": root, **dict(zip(("Hips", "Spine", "Chest", "Neck", "Head"), trunk))}
-    return out | {f"{b}_{S}": limb(S, Side, s, k) for S, Side, s in SIDES for k, b in enumerate(LIMBS)}
+def _rig(root: str, trunk: str, limbs: str) -> dict[str, str]:
+    """Bandai name -> another rig's. ``trunk``: the rig's Hips, Spine, Chest, Neck and Head, ``|``-separated;
+    ``limbs``: its names for :data:`LIMBS`, with ``{S}`` (L/R), ``{Side}`` (Left/Right) or ``{s}`` (l/r)."""
+    out = {"joint_Root": root, **dict(zip(("Hips", "Spine", "Chest", "Neck", "Head"), trunk.split("|")))}
+    for S, Side, s in SIDES:
+        out |= {f"{b}_{S}": n.format(S=S, Side=Side, s=s) for b, n in zip(LIMBS, limbs.split("|"))}
+    return out
 
 
 CMU_MAX = _rig(
     "root",
-    ("Hips", "lowerback", "Chest2", "Neck", "Head"),
-    lambda _, Side, __, k: Side + ("Collar", "Shoulder", "Elbow", "Wrist", "Hip", "Knee", "Ankle", "Toe")[k],
+    "Hips|lowerback|Chest2|Neck|Head",
+    "{Side}Collar|{Side}Shoulder|{Side}Elbow|{Side}Wrist|{Side}Hip|{Side}Knee|{Side}Ankle|{Side}Toe",
 )
 BIPED = _rig(
     "Bip01",
-    ("Bip01 Pelvis", "Bip01 Spine", "Bip01 Spine1", "Bip01 Neck", "Bip01 Head"),
-    lambda S, _, __, k: f"Bip01 {S} " + ("Clavicle", "UpperArm", "Forearm", "Hand", "Thigh", "Calf", "Foot", "Toe0")[k],
+    "Bip01 Pelvis|Bip01 Spine|Bip01 Spine1|Bip01 Neck|Bip01 Head",
+    "Bip01 {S} Clavicle|Bip01 {S} UpperArm|Bip01 {S} Forearm|Bip01 {S} Hand|Bip01 {S} Thigh|Bip01 {S} Calf"
+    "|Bip01 {S} Foot|Bip01 {S} Toe0",
 )
 OPTITRACK = _rig(
-    "Root",
-    ("Hip", "Ab", "Chest", "Neck", "Head"),
-    lambda S, _, __, k: S + ("Shoulder", "UArm", "FArm", "Hand", "Thigh", "Shin", "Foot", "Toe")[k],
+    "Root", "Hip|Ab|Chest|Neck|Head", "{S}Shoulder|{S}UArm|{S}FArm|{S}Hand|{S}Thigh|{S}Shin|{S}Foot|{S}Toe"
 )
 SMPL = _rig(
     "root",
-    ("Pelvis", "Spine1", "Spine3", "Neck", "Head"),
-    lambda S, _, __, k: f"{S}_" + ("Collar", "Shoulder", "Elbow", "Wrist", "Hip", "Knee", "Ankle", "Foot")[k],
+    "Pelvis|Spine1|Spine3|Neck|Head",
+    "{S}_Collar|{S}_Shoulder|{S}_Elbow|{S}_Wrist|{S}_Hip|{S}_Knee|{S}_Ankle|{S}_Foot",
 )
 UNREAL = _rig(
     "root",
-    ("pelvis", "spine_01", "spine_03", "neck_01", "head"),
-    lambda _, __, s, k: ("clavicle", "upperarm", "lowerarm", "hand", "thigh", "calf", "foot", "ball")[k] + f"_{s}",
+    "pelvis|spine_01|spine_03|neck_01|head",
+    "clavicle_{s}|upperarm_{s}|lowerarm_{s}|hand_{s}|thigh_{s}|calf_{s}|foot_{s}|ball_{s}",
 )
 VROID = _rig(
     "Root",
-    ("J_Bip_C_Hips", "J_Bip_C_Spine", "J_Bip_C_Chest", "J_Bip_C_Neck", "J_Bip_C_Head"),
-    lambda S, _, __, k: (
-        f"J_Bip_{S}_" + ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "ToeBase")[k]
+    "J_Bip_C_Hips|J_Bip_C_Spine|J_Bip_C_Chest|J_Bip_C_Neck|J_Bip_C_Head",
+    "|".join(
+        f"J_Bip_{{S}}_{b}"
+        for b in ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "ToeBase")
     ),
 )
-UNITY = _rig("Root", ("Hips", "Spine", "Chest", "Neck", "Head"), lambda _, Side, __, k: Side + LIMBS[k])
+UNITY = _rig("Root", "Hips|Spine|Chest|Neck|Head", "|".join(f"{{Side}}{b}" for b in LIMBS))
 
 
 @pytest.fixture(scope="module")
