@@ -596,6 +596,18 @@ class Retargeter(FrameIntake):
         self._placed[side] = placed
         return placed
 
+    def _swivel_occluded(self, side: str, frame: HumanFrame) -> bool:
+        """True when this arm's swivel elbow cannot be placed on this frame because the source lost its shoulder or
+        wrist (a bone it gives, invalid here: an occluded marker). The elbow target is then held with the wrist's,
+        as an invalid target, instead of switching to the box map for those frames: on the Vicon box lift the wrist
+        markers drop out for 29 frames and the elbow target jumped 7.5 cm between the two placements, back and forth
+        (HQP elbow p99 7.8 cm). A source that never gives those bones keeps the box map."""
+        if side not in self.arms or self.config.mode == "incremental" or self.config.elbow_placement != "swivel":
+            return False
+        return any(
+            (b := frame.bones.get(f"{side}_{name}")) is not None and not b.valid for name in ("shoulder", "wrist")
+        )
+
     def _elbow_in_box(self, t: str, p: np.ndarray) -> np.ndarray:
         """A swivel elbow target (3,) [m] as published: kept in the workspace box in bounded mode."""
         if self.config.mode != "bounded":
@@ -718,7 +730,8 @@ class Retargeter(FrameIntake):
         """
         n = len(TARGET_NAMES)
         bones: list[Bone | None] = [frame.bones.get(self.bone_of[t]) for t in TARGET_NAMES]
-        valid = [b is not None and b.valid for b in bones]
+        valid = [b is not None and b.valid and not (t in ELBOWS and self._swivel_occluded(side_of(t), frame))
+                 for t, b in zip(TARGET_NAMES, bones, strict=True)]  # fmt: skip
         all_valid = all(valid)
         H = np.zeros((n, 3))
         Q = np.zeros((n, 4))

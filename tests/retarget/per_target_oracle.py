@@ -37,7 +37,7 @@ class PerTargetRetargeter(Retargeter):
     def _target(self, t: str, frame: HumanFrame, dt: float | None, done: dict[str, Target]) -> Target:
         use_rot = frame.oriented and (t in WRISTS or self.config.elbow_rotation)
         bone = frame.bones.get(self.bone_of[t])
-        if bone is None or not bone.valid:
+        if bone is None or not bone.valid or (t in ELBOWS and self._swivel_occluded(side_of(t), frame)):
             self.counts[f"invalid_{t}"] += 1
             self._o_prev[t] = None
             self._o_vfilt[t].reset()

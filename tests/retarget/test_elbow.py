@@ -105,3 +105,30 @@ def test_forearm_blend_makes_the_alignment_continuous_as_the_arm_straightens():
     np.testing.assert_allclose(
         arm_alignment(up_H, fore_H, up_U, fore_U, True), arm_alignment(up_H, fore_H, up_U, fore_U)
     )
+
+
+def test_an_elbow_whose_wrist_marker_drops_out_is_held_with_it(robot14, workspace):
+    """A source that loses a wrist marker for a few frames: the swivel elbow cannot be placed, and the elbow target
+    is held (invalid, at rest) where it was with its wrist, not moved to the box map's elbow (on the Vicon box lift
+    the two placements were 7.5 cm apart, and the target flipped between them). A source without wrists at all
+    keeps the box-mapped elbow."""
+    from services.retarget.retargeter import RetargetConfig, Retargeter
+    from tests.retarget.conftest import make_frame
+
+    rt = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    lift = {"left_wrist": np.array([0.25, 0.0, 0.25]), "left_elbow": np.array([0.05, 0.05, 0.0])}
+    out = [rt.step(make_frame(k + 1, 0.01 * k, offsets=lift, invalid=("left_wrist",) if 5 <= k < 8 else ()))
+           for k in range(10)]  # fmt: skip
+    before = out[4].targets["left_elbow"]
+    for k in (5, 6, 7):
+        el = out[k].targets["left_elbow"]
+        assert not el.valid and not out[k].targets["left_wrist"].valid
+        np.testing.assert_allclose(el.p, before.p, atol=1e-12)
+        assert not el.v.any()
+    assert out[8].targets["left_elbow"].valid and out[5].targets["right_elbow"].valid  # back; the other arm untouched
+    np.testing.assert_allclose(out[8].targets["left_elbow"].p, before.p, atol=1e-9)  # the same pose again
+    mapped = Retargeter(RetargetConfig(), workspace=workspace, robot=robot14)
+    for k in range(3):
+        frame = make_frame(k + 1, 0.01 * k, offsets=lift, drop=("left_wrist",) if k == 2 else ())
+        el = mapped.step(frame).targets["left_elbow"]
+    assert el.valid and np.linalg.norm(el.p - before.p) > 0.01  # no wrist bone: the box map's elbow, elsewhere
