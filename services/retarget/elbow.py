@@ -30,6 +30,14 @@ from shared.targets import elbow_of, wrist_of
 #: Swivel direction used when the operator's arm is straight [m]: blended in with this weight,
 #: so the direction stays continuous when the elbow crosses the shoulder-wrist line.
 _STRAIGHT_BLEND = 0.01
+#: Weight [m] of the previous frame's swivel direction (``place(prior=...)``) against the operator's elbow offset
+#: from their shoulder-wrist line, up to an offset of this size, then falling as its square (a 4 cm offset, an elbow
+#: bent about 15 deg, turns by 7 deg at most; 8 cm by 2): an operator's straight arm has an offset of millimetres,
+#: mostly noise, while the robot's arm, its wrist target short of full stretch, is bent and needs a direction.
+#: Without it, on byebye_happy's straight right arm the elbow target swung up to 7 cm a frame with the operator's
+#: elbow and wrist still within 1 cm. A constant weight lagged the bent arms' swivel (bye_normal HQP elbow 0.235 ->
+#: 0.350 cm).
+SWIVEL_PRIOR = 0.02
 #: Kept inside the reach shell [m], so the elbow target stays clear of the elbow joint's stops.
 REACH_MARGIN = 0.005
 
@@ -114,11 +122,13 @@ class ArmGeometry:
         k = min(max(d, self.reach[0]), self.reach[1]) / d
         return np.array([c[0] + a[0] * k, c[1] + a[1] * k, c[2] + a[2] * k])
 
-    def place(self, wrist: np.ndarray, swivel: np.ndarray) -> np.ndarray:
+    def place(self, wrist: np.ndarray, swivel: np.ndarray, prior: np.ndarray | None = None) -> np.ndarray:
         """Elbow target (3,) [m] for a wrist target (3,) [m] and a swivel direction (3,).
 
-        ``swivel`` is the operator's elbow offset from their shoulder-wrist line (any length;
-        only its direction perpendicular to the robot's shoulder-wrist line is used).
+        ``swivel`` is the operator's elbow offset from their shoulder-wrist line [m]; its direction perpendicular to
+        the robot's shoulder-wrist line is used, blended with the default direction weighted ``_STRAIGHT_BLEND`` and
+        with ``prior`` (3,), a unit swivel direction (the previous frame's), weighted :data:`SWIVEL_PRIOR` on a
+        straight operator arm.
         """
         c = _xyz(self.centre)
         a = _diff(_xyz(wrist), c)
@@ -128,13 +138,25 @@ class ArmGeometry:
         u = (a[0] / d, a[1] / d, a[2] / d)
         x, r = elbow_circle(self.upper, self.fore, d)
         s, n0 = _xyz(swivel), _xyz(self.default_swivel)
-        n = _perp3((s[0] + _STRAIGHT_BLEND * n0[0], s[1] + _STRAIGHT_BLEND * n0[1], s[2] + _STRAIGHT_BLEND * n0[2]), a)
+        b, p0 = 0.0, n0
+        if prior is not None:  # full weight on a straight arm's millimetres, fading as (SWIVEL_PRIOR / offset)^2
+            s2 = max(s[0] * s[0] + s[1] * s[1] + s[2] * s[2], 1e-18)
+            b, p0 = SWIVEL_PRIOR * min(1.0, SWIVEL_PRIOR * SWIVEL_PRIOR / s2), _xyz(prior)
+        k = _STRAIGHT_BLEND
+        n = _perp3(tuple(s[i] + k * n0[i] + b * p0[i] for i in range(3)), a)
         nn = _norm(n)
         if nn < 1e-9:
             n = _perp3((n0[0], n0[1], n0[2] - 1.0), a)
             nn = _norm(n)
         m = max(nn, 1e-12)
         return np.array([c[i] + x * u[i] + r * (n[i] / m) for i in range(3)])
+
+
+def swivel_direction(centre: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray | None:
+    """Unit direction (3,) of an elbow (3,) [m] from its shoulder (``centre``)-wrist line, or None on the line."""
+    v = _perp(np.asarray(elbow, dtype=float) - centre, np.asarray(wrist, dtype=float) - centre)
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-9 else None
 
 
 def elbow_circle(upper: float, fore: float, d: float) -> tuple[float, float]:

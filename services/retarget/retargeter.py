@@ -45,7 +45,7 @@ from services.retarget.calibration import (
     from_wrists,
 )
 from services.retarget.consistent import ConsistentArm
-from services.retarget.elbow import ArmGeometry, human_swivel
+from services.retarget.elbow import ArmGeometry, human_swivel, swivel_direction
 from services.retarget.intake import FrameIntake
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES, AbsoluteMap, IncrementalMap
 from services.retarget.orientation import (
@@ -316,6 +316,8 @@ class Retargeter(FrameIntake):
         self._arm_rows = {s: (TARGET_NAMES.index(wrist_of(s)), TARGET_NAMES.index(elbow_of(s))) for s in SIDES}
         #: side -> (swivel elbow, operator shoulder, operator elbow) placed for the current frame
         self._placed: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        #: side -> unit swivel direction of that placement (``elbow.swivel_direction``), the next frame's prior
+        self._placed_dir: dict[str, np.ndarray] = {}
         self.rejects: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_reject: tuple[str, str] | None = None
@@ -346,6 +348,8 @@ class Retargeter(FrameIntake):
         self._has_prev = [False] * n
         self._eye_stack = np.tile(np.eye(3), (n, 1, 1))
         self._use_rotation = [t in WRISTS or self.config.elbow_rotation for t in TARGET_NAMES]
+        #: side -> unit swivel direction of the previous frame's elbow placement (``ArmGeometry.place``'s prior)
+        self._swivel_prior: dict[str, np.ndarray] = {}
         self._no_rotation = [False] * len(TARGET_NAMES)  # a source without measured orientations
         #: low-pass filtered linear [m/s] and angular [rad/s] velocities, a row per target
         self._vfilt = LowPassVelocity(self.config.velocity_tau, self.config.max_gap, rows=n)
@@ -505,6 +509,9 @@ class Retargeter(FrameIntake):
             self._posture_maps(frame)
         self.counts["frames"] += 1
         self._placed.clear()
+        self._placed_dir.clear()
+        if dt is None or dt > self.config.max_gap:  # a new stream or a gap: the operator's arms may be anywhere
+            self._swivel_prior.clear()
         targets = self._targets(frame, dt)
         upper_arms = {}
         for side, ua_map in self.upper_arm_maps.items():
@@ -512,6 +519,7 @@ class Retargeter(FrameIntake):
             placed = self._place_elbow(side, frame, wrist.p) if wrist.valid else None
             if placed is not None:
                 upper_arms[side] = matrix_to_quat(ua_map(placed[0], wrist.p))
+        self._swivel_prior.update(self._placed_dir)  # the next frame's prior: this frame's last placements
         return TaskTargets(
             Header(hdr.seq, hdr.stamp, hdr.t0),
             targets,
@@ -592,8 +600,10 @@ class Retargeter(FrameIntake):
         if any(b is None or not b.valid for b in bones):
             return None
         h_sh, h_el, h_wr = (np.asarray(b.p, dtype=float) for b in bones)
-        placed = (arm.place(wrist_p, human_swivel(h_sh, h_el, h_wr)), h_sh, h_el)
+        placed = (arm.place(wrist_p, human_swivel(h_sh, h_el, h_wr), self._swivel_prior.get(side)), h_sh, h_el)
         self._placed[side] = placed
+        if (d := swivel_direction(arm.centre, placed[0], wrist_p)) is not None:
+            self._placed_dir[side] = d
         return placed
 
     def _swivel_occluded(self, side: str, frame: HumanFrame) -> bool:

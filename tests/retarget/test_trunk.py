@@ -104,13 +104,14 @@ def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk
             np.linalg.norm(np.diff(pushed, axis=0), axis=1).max()
             <= np.linalg.norm(np.diff(plain, axis=0), axis=1).max() * 1.05
         )
-        # the elbow is placed again where (and only where) its wrist moved
+        # the elbow is placed again where its wrist moved; elsewhere it moves only as far as the next frame's
+        # swivel prior (the last placement's direction) carries the difference
         moved = np.linalg.norm(pushed - plain, axis=1) > 0
         # the hands rest on the belly on most of those frames: there the full clearance
         assert abs(np.median(clearance(out[True], side)[moved]) - trunk.clearance) < TOL
         elbows = [np.array([tt.targets[f"{side}_elbow"].p for tt in out[on]]) for on in (False, True)]
-        emoved = np.linalg.norm(elbows[1] - elbows[0], axis=1) > 0
-        assert moved.any() and np.array_equal(moved, emoved)
+        emove = np.linalg.norm(elbows[1] - elbows[0], axis=1)
+        assert moved.any() and (emove[moved] > 0).all() and emove[~moved].max() < 0.002  # measured 0.65 mm
 
 
 @pytest.fixture(scope="module")
