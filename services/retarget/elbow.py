@@ -35,8 +35,8 @@ _STRAIGHT_BLEND = 0.01
 #: bent about 15 deg, turns by 7 deg at most; 8 cm by 2): an operator's straight arm has an offset of millimetres,
 #: mostly noise, while the robot's arm, its wrist target short of full stretch, is bent and needs a direction.
 #: Without it, on byebye_happy's straight right arm the elbow target swung up to 7 cm a frame with the operator's
-#: elbow and wrist still within 1 cm. A constant weight lagged the bent arms' swivel (bye_normal HQP elbow 0.235 ->
-#: 0.350 cm).
+#: elbow and wrist still within 1 cm. The default direction's 1 cm blend stays under it: with the prior in its place
+#: the bent arms' elbows moved too (bye_normal HQP elbow 0.235 -> 0.350 cm).
 SWIVEL_PRIOR = 0.02
 #: Kept inside the reach shell [m], so the elbow target stays clear of the elbow joint's stops.
 REACH_MARGIN = 0.005
