@@ -362,6 +362,8 @@ class Retargeter(FrameIntake):
             wr.reset()
         for hs in getattr(self, "_hand_speed", {}).values():
             hs.reset()
+        #: side -> the exit ray of its wrist target's last trunk push (``TrunkClearance.push``), while it lasts
+        self._trunk_ray: dict[str, np.ndarray] = {}
         for m in getattr(self, "_pos_map", {}).values():
             if isinstance(m, IncrementalMap):
                 m.reanchor()
@@ -716,11 +718,15 @@ class Retargeter(FrameIntake):
         gap = dt is None or dt > self.config.max_gap
         for side in SIDES:
             iw, ie = self._arm_rows[side]
+            prior = None if gap else self._trunk_ray.get(side)  # after a gap it belongs to another motion
+            self._trunk_ray.pop(side, None)
             if not valid[iw]:
                 self._hand_speed[side].reset()
                 continue
             speed = self._hand_speed[side].update(P[iw], None if gap else dt)
-            p = self.trunk(side, P[iw], R[iw], speed)
+            p, ray = self.trunk.push(side, P[iw], R[iw], speed, prior)
+            if ray is not None:
+                self._trunk_ray[side] = ray
             if p is P[iw]:
                 continue
             P[iw] = p

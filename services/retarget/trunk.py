@@ -19,7 +19,9 @@ through the hand's centre: for a hand beside the torso that is the surface norma
 with the target, so a target sliding into the body slides along its surface, and one past the link's middle
 still leaves by the near side. (The distance's own gradient was tried first: where the hand overlaps a link it
 is a face normal of the polytopes, which jumps between faces as the target moves, 5-14 mm between frames on
-bow_old.) ``t`` is found by Newton steps.
+bow_old.) ``t`` is found by Newton steps kept within a bracket. A hand pushed frame after frame turns its ray from
+the last one by :data:`EXIT_TURN` at most (:meth:`TrunkClearance.push` with ``prior``), so a target deep enough to
+pass the axis goes round the body instead of leaving by the other side.
 
 With ``fast_clearance`` the clearance depends on the hand's speed (:meth:`TrunkClearance.clearance_at`, the
 speed low-passed by :class:`HandSpeed`): the full one for a resting hand, which must keep the solver's dampers
@@ -47,9 +49,13 @@ ITERATIONS = 3
 #: Lower bound of the cosine between the exit ray and the distance's gradient (a Newton step is the distance
 #: still to go over it).
 EXIT_COS = 0.3
-#: Newton steps along one exit ray, and the distance tolerance [m] that ends them.
-NEWTON_STEPS = 6
+#: Newton (or bisection) steps along one exit ray, and the distance tolerance [m] that ends them.
+NEWTON_STEPS = 12
 TOL = 2e-4
+#: Largest turn [rad] of a hand's exit ray between consecutive calls (15 deg): a target sliding deep into the torso
+#: past its central axis (kick_normal's right hand across the chest) turned the ray from the front through the side
+#: to the back in three frames, the published target 10-17 cm from the last one each time.
+EXIT_TURN = math.radians(15.0)
 #: Distance [m] beyond the clearance within which trunk links are measured (farther ones cannot bind).
 LOOKOUT = 0.05
 
@@ -255,6 +261,28 @@ class TrunkClearance:
         forward = np.array([1.0, 0.0, 0.0]) - axis[0] * axis  # on the axis itself: out of the front
         return forward / np.linalg.norm(forward)
 
+    def _along(
+        self, side: str, p: np.ndarray, R: np.ndarray, u: np.ndarray, c: float, dist: float, n: np.ndarray
+    ) -> np.ndarray:
+        """The point p + t u (3,) [m], t > 0, where the hand's distance reaches ``c`` (``dist`` [m] and its direction
+        ``n`` (3,) at p): Newton steps in t (the distance grows by u.n per metre), kept within the bracket of the
+        points found inside and outside, else halving it. Unbracketed Newton could cycle: from deep in the torso a
+        step lands past the lookout, where no link is measured and the slope is unknown, and the next comes back."""
+        t, lo, hi = 0.0, 0.0, math.inf
+        for _ in range(NEWTON_STEPS):
+            t_new = t + (c - dist) / max(float(u @ n), EXIT_COS)  # inside (dist < c): always further out
+            if not lo < t_new < hi:  # (so hi is finite here)
+                t_new = 0.5 * (lo + hi)
+            t = t_new
+            dist, n, _ = self.nearest(side, p + t * u, R)
+            if abs(dist - c) < TOL:
+                return p + t * u
+            if dist < c:
+                lo = t
+            else:
+                hi = t
+        return p + (hi if hi < math.inf else t) * u  # outside (at least c off) when a point there was found
+
     def clearance_at(self, speed: float) -> float:
         """The clearance [m] for a hand moving at ``speed`` [m/s]: ``clearance`` up to SLOW, ``fast_clearance``
         from FAST, a smoothstep in between (continuous in the speed, so the target moves with it smoothly)."""
@@ -268,7 +296,14 @@ class TrunkClearance:
     def __call__(self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0) -> np.ndarray:
         """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance_at(speed)`` off the
         trunk; ``p`` itself (the same object) when it already is."""
-        out = p
+        return self.push(side, p, R, speed)[0]
+
+    def push(
+        self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0, prior: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`__call__`, and the exit ray (3,) it pushed along (None: not pushed). With ``prior``, the ray of
+        the same hand's previous push, the new ray turns from it by :data:`EXIT_TURN` at most."""
+        out, used = p, None
         g_hand = self._hand[side][0]
         c = self.clearance_at(speed)
         for _ in range(ITERATIONS):
@@ -276,12 +311,23 @@ class TrunkClearance:
             if dist >= c - TOL:
                 break
             u = self._exit_ray(g, g_hand)
-            for _ in range(NEWTON_STEPS):  # d(out + t u) = c, Newton in t (d grows by u.n per metre)
-                out = out + u * ((c - dist) / max(float(u @ n), EXIT_COS))
-                dist, n, g2 = self.nearest(side, out, R)
-                if g2 == g and abs(dist - c) < TOL:
-                    break
-        return out
+            if prior is not None:  # a hand past the link's axis keeps leaving the way it did
+                u = _turn_towards(prior, u, EXIT_TURN)
+            used = u if used is None else used
+            out = self._along(side, out, R, u, c, dist, n)
+        return out, used
+
+
+def _turn_towards(a: np.ndarray, b: np.ndarray, limit: float) -> np.ndarray:
+    """Unit a (3,) turned towards unit b (3,) by at most ``limit`` [rad] (a itself when b points away from it)."""
+    c = float(np.clip(a @ b, -1.0, 1.0))
+    if math.acos(c) <= limit:
+        return b
+    perp = b - c * a
+    n = float(np.linalg.norm(perp))
+    if n < 1e-9:
+        return a
+    return math.cos(limit) * a + math.sin(limit) * perp / n
 
 
 #: (profile file, joints) -> the self-collision model whose proxies the pushes read (never changed by them), so a

@@ -171,3 +171,22 @@ def test_published_velocities_are_those_of_the_pushed_path(bvh_clips, robot14, w
     moved = np.linalg.norm(P - np.array([tt.targets["left_wrist"].p for tt in plain]), axis=1) > 1e-4
     assert moved.sum() > 10
     np.testing.assert_allclose(V[1:], fd, atol=1e-9)
+
+
+def test_a_target_passing_the_torso_axis_turns_round_it_instead_of_jumping(trunk, hand_down):
+    """A hand target driven straight through the chest, front to back, in 1 cm steps (kick_normal's right hand went
+    across the chest, 10 cm inside the front). On its own each push leaves along the ray from the torso's axis
+    through the hand, so as the hand passes the axis the published target jumps from the front to the back (12.9 cm
+    in one step). Chained as the retargeter chains them (each push's ray the next one's prior), the ray turns by
+    EXIT_TURN a step at most: the target goes round the side (largest step 5.0 cm), always at the clearance."""
+    mujoco.mj_kinematics(trunk.model, trunk.data)
+    z = trunk.data.geom_xpos[trunk.model.geom("polytope:logo_link").id][2]
+    alone, chained, prior = [], [], None
+    for x in np.arange(0.15, -0.10, -0.01):
+        q = np.array([x, 0.01, z])
+        alone.append(trunk("left", q, hand_down))
+        out, prior = trunk.push("left", q, hand_down, prior=prior)
+        chained.append(out)
+    steps = [np.linalg.norm(np.diff(np.array(t), axis=0), axis=1).max() for t in (alone, chained)]
+    assert steps[0] > 0.10 and steps[1] < 0.06, steps
+    assert min(trunk.nearest("left", o, hand_down)[0] for o in chained) > trunk.clearance - TOL
