@@ -143,7 +143,7 @@ class ArmGeometry:
             s2 = max(s[0] * s[0] + s[1] * s[1] + s[2] * s[2], 1e-18)
             b, p0 = SWIVEL_PRIOR * min(1.0, SWIVEL_PRIOR * SWIVEL_PRIOR / s2), _xyz(prior)
         k = _STRAIGHT_BLEND
-        n = _perp3(tuple(s[i] + k * n0[i] + b * p0[i] for i in range(3)), a)
+        n = _perp3((s[0] + k * n0[0] + b * p0[0], s[1] + k * n0[1] + b * p0[1], s[2] + k * n0[2] + b * p0[2]), a)
         nn = _norm(n)
         if nn < 1e-9:
             n = _perp3((n0[0], n0[1], n0[2] - 1.0), a)
@@ -153,10 +153,12 @@ class ArmGeometry:
 
 
 def swivel_direction(centre: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray | None:
-    """Unit direction (3,) of an elbow (3,) [m] from its shoulder (``centre``)-wrist line, or None on the line."""
-    v = _perp(np.asarray(elbow, dtype=float) - centre, np.asarray(wrist, dtype=float) - centre)
-    n = float(np.linalg.norm(v))
-    return v / n if n > 1e-9 else None
+    """Unit direction (3,) of an elbow (3,) [m] from its shoulder (``centre``)-wrist line, or None on the line.
+    (Plain floats, as :meth:`ArmGeometry.place`: it runs after every placement.)"""
+    c = _xyz(centre)
+    v = _perp3(_diff(_xyz(elbow), c), _diff(_xyz(wrist), c))
+    n = _norm(v)
+    return np.array([v[0] / n, v[1] / n, v[2] / n]) if n > 1e-9 else None
 
 
 def elbow_circle(upper: float, fore: float, d: float) -> tuple[float, float]:
