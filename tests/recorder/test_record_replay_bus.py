@@ -147,8 +147,11 @@ def test_replay_original_timing_and_fast_into_new_session(router, tmp_path):
     # sample can take a path ~15 ms faster than the rest, which is not a replay timing error.
     dev = rel - np.array(offsets)
     err = np.abs(dev - np.median(dev))
-    # Scheduling spikes of a loaded 2-core machine are tolerated; drift is not (absolute deadlines).
-    assert np.median(err) < 0.005 and np.percentile(err, 90) < 0.02, err
+    # Scheduling spikes of a loaded 2-core machine are tolerated (one run of the whole suite saw a p90
+    # of 38 ms); drift is not (absolute deadlines): the second half's delay is the first half's.
+    assert np.median(err) < 0.005, err
+    half = len(dev) // 2
+    assert abs(np.median(dev[half:]) - np.median(dev[:half])) < 0.005, dev
     assert np.median(err[-10:]) < 0.01, err
     span = offsets[-1]
 
