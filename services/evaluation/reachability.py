@@ -192,7 +192,12 @@ def trunk_for(robot: RobotModel) -> TrunkClearance | None:
     key = f"{robot.profile.source}:{','.join(robot.joint_names)}"
     if key not in _TRUNKS:
         try:
-            _TRUNKS[key] = TrunkClearance(robot, {s: robot.profile.frames[f"{s}_wrist"] for s in SIDES})
+            prof = robot.profile
+            _TRUNKS[key] = TrunkClearance(
+                robot,
+                {s: prof.frames[f"{s}_wrist"] for s in SIDES},
+                hand_frames={s: prof.orientation_frame(f"{s}_wrist") for s in SIDES},
+            )
         except NoTrunkError:
             _TRUNKS[key] = None
     return _TRUNKS[key]
@@ -228,11 +233,12 @@ def check_targets(
             wres[s][k] = res
             warm[s] = q
             if trunk is not None:
-                if w.use_rotation:
-                    R = quat_to_matrix(w.q)
-                else:  # the hand as the IK left it
-                    R = robot.frame_poses(q, names=(f"{s}_wrist",))[f"{s}_wrist"][1]
-                bdist[s][k] = trunk.nearest(s, w.p, R)[0]
+                pose = robot.frame_poses(q, names=(f"{s}_wrist", f"{s}_elbow"))
+                e = tt.targets.get(f"{s}_elbow")
+                elbow = np.asarray(e.p) if e is not None and e.valid else pose[f"{s}_elbow"][0]
+                # the hand as the target turns it, else as the IK left it
+                R = quat_to_matrix(w.q) if w.use_rotation else pose[f"{s}_wrist"][1]
+                bdist[s][k] = trunk.nearest(s, w.p, R, np.asarray(w.p) - elbow)[0]
             e = tt.targets.get(f"{s}_elbow")
             if pair and e is not None and e.valid:
                 res, q = iks[s].solve(w.p, e.p, q0=warm_pair[s] if warm_pair[s] is not None else warm[s], tol=PAIR_TOL)

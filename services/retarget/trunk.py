@@ -9,16 +9,21 @@ distance, but it carries the trunk away from a target fixed in the pelvis frame 
 
     p' = p + t u,   t >= 0 such that d(p') = c   (where d(p) < c),
 
-with ``d`` the signed distance [m] between the robot hand, posed at the target (the wrist frame's link proxy,
-hand included), and the nearest trunk link at the waist's rest posture, and ``c`` the clearance (the
-profile's collision safety distance plus :data:`PAD`). Distances are MuJoCo's ``mj_geomDistance`` on the
-solver's link proxies (:mod:`services.solver.collision`: convex polytopes holding each link's mesh),
-penetration included. The exit direction ``u`` runs from the nearest point of the central axis of the rigid
-body the link is on (the longest principal axis of that body's trunk proxies together, within their extent)
-through the hand's centre: for a hand beside the torso that is the surface normal, and it moves continuously
-with the target, so a target sliding into the body slides along its surface, and one past the link's middle
-still leaves by the near side. (The distance's own gradient was tried first: where the hand overlaps a link it
-is a face normal of the polytopes, which jumps between faces as the target moves, 5-14 mm between frames on
+with ``d`` the signed distance [m] between the robot hand, posed at the target, and the nearest trunk link at the
+waist's rest posture, and ``c`` the clearance (the profile's collision safety distance plus :data:`PAD`). Distances
+are MuJoCo's ``mj_geomDistance`` on the solver's link proxies (:mod:`services.solver.collision`: convex polytopes
+holding each link's mesh), penetration included. The hand is the wrist link (the target's position frame, the G1's
+pitch link) and the link whose orientation the target gives, one joint past it (the yaw link, up to 9 cm from the
+wrist point): the target fixes the second link's orientation, and the first sits between it and the forearm
+(:class:`HandChain`). Until session 25 only the wrist link was posed, and at the hand's orientation, so its 7.5 cm
+extent pointed wherever the hand did, off by the wrist yaw, and the hand past it was not checked: mink (no
+self-collision avoidance) tracking the published targets touched the trunk on 68 sim steps of
+wave-left-hand_masculine, 28 after (``mimic eval``). The exit direction ``u`` runs from the nearest point of the
+central axis of the rigid body the link is on (the longest principal axis of that body's trunk proxies together,
+within their extent) through the wrist link's centre: for a hand beside the torso that is the surface normal, and it
+moves continuously with the target, so a target sliding into the body slides along its surface, and one past the
+link's middle still leaves by the near side. (The distance's own gradient was tried first: where the hand overlaps a
+link it is a face normal of the polytopes, which jumps between faces as the target moves, 5-14 mm between frames on
 bow_old.) ``t`` is found by Newton steps kept within a bracket. A hand pushed frame after frame turns its ray from
 the last one by :data:`EXIT_TURN` at most (:meth:`TrunkClearance.push` with ``prior``), so a target deep enough to
 pass the axis goes round the body instead of leaving by the other side.
@@ -36,10 +41,11 @@ import math
 
 import mujoco
 import numpy as np
+import pinocchio as pin
 
 from services.solver.collision import SelfCollisionAvoidance, add_proxy_geom, witness_normal
 from shared.robot.pinocchio_model import RobotModel
-from shared.rotations import matrix_to_quat
+from shared.rotations import cross3, matrix_to_quat
 
 #: Clearance [m] beyond the collision safety distance: a target exactly at the safety distance would hold the
 #: solver's damper at its stop.
@@ -103,6 +109,69 @@ class HandSpeed:
         return self.speed
 
 
+class HandChain:
+    """How a hand link one revolute joint past the wrist link sits on it (the G1's wrist yaw link on the pitch link).
+
+    The wrist target gives the wrist link's origin p and the hand link's orientation R; the joint between them
+    is unknown, so the wrist link's orientation is chosen among those that joint allows as the one whose
+    forward direction (towards the hand link's origin) is nearest the forearm's: on the G1 that is exact up
+    to the elbow link's offset from the forearm (the sine of the wrist pitch is the forearm's component along
+    the yaw axis, :mod:`.wrist_range`), and without it the wrist link's x axis would be taken as the hand's,
+    off by the yaw angle.
+
+    Args:
+        robot: the robot model. wrist_link, hand_link: link names; exactly one joint of the model moves the
+            hand link and not the wrist link, a revolute one whose axis runs through the hand link's origin.
+
+    Raises:
+        ValueError: the links are not one revolute joint apart.
+    """
+
+    def __init__(self, robot: RobotModel, wrist_link: str, hand_link: str):
+        m = robot.model
+        fw, fh = m.getFrameId(wrist_link), m.getFrameId(hand_link)
+        between = [j for j in m.supports[m.frames[fh].parentJoint] if j not in m.supports[m.frames[fw].parentJoint]]
+        if len(between) != 1 or m.joints[between[0]].nq != 1:
+            raise ValueError(f"{hand_link!r} is not one revolute joint past {wrist_link!r}")
+        j = m.joints[between[0]].idx_q
+        data = m.createData()
+
+        def poses(angle: float) -> tuple[pin.SE3, pin.SE3]:
+            q = np.array(robot.q_rest, dtype=float)
+            q[j] = angle
+            pin.framesForwardKinematics(m, data, q)
+            return data.oMf[fw].copy(), data.oMf[fh].copy()
+
+        w0, h0 = poses(0.0)
+        _, h1 = poses(0.1)
+        rel = w0.actInv(h0)
+        #: (3,) [m] the hand link's origin in the wrist link's frame
+        self.offset = rel.translation.copy()
+        #: (3, 3) the hand link's orientation in the wrist link's frame with the joint at 0
+        self.R_rel = rel.rotation.copy()
+        #: (3,) unit joint axis in the hand link's frame
+        self.axis = pin.log3(h0.rotation.T @ h1.rotation) / 0.1
+        self.axis /= np.linalg.norm(self.axis)
+        if np.linalg.norm(h1.translation - h0.translation) > 1e-6:
+            raise ValueError(f"the joint between {wrist_link!r} and {hand_link!r} moves the hand link's origin")
+        #: (3,) the wrist link's forward direction (towards the hand link's origin) in the hand link's frame at 0
+        self._forward = self.R_rel.T @ (self.offset / max(float(np.linalg.norm(self.offset)), 1e-9))
+
+    def pose(self, p: np.ndarray, R: np.ndarray, forearm: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The wrist link's orientation (3, 3) and the hand link's origin (3,) [m] for the wrist link at p (3,) and
+        the hand link at orientation R (3, 3) (base frame), the joint angle turning the wrist link's forward
+        direction nearest to ``forearm`` (3,) (None, or along the axis: the joint at 0)."""
+        theta = 0.0
+        if forearm is not None:
+            a, v, f = self.axis, self._forward, R.T @ np.asarray(forearm, dtype=float)
+            v_perp, f_perp = v - (v @ a) * a, f - (f @ a) * a
+            if f_perp @ f_perp > 1e-12 and v_perp @ v_perp > 1e-12:
+                # the wrist link is the hand link turned back by the joint: its forward direction is v turned by -theta
+                theta = -math.atan2(float(a @ cross3(v_perp, f_perp)), float(v_perp @ f_perp))
+        R_wrist = R @ pin.exp3(-theta * self.axis) @ self.R_rel.T
+        return R_wrist, p + R_wrist @ self.offset
+
+
 class TrunkClearance:
     """Pushes wrist targets (robot base frame) out of the robot's trunk, held at the waist's rest posture.
 
@@ -119,6 +188,10 @@ class TrunkClearance:
             process, built on first use, ~1.5 s); it is not changed.
         fast_clearance: [m] the clearance for a hand moving at :data:`FAST` or faster (:meth:`clearance_at`;
             None: the full clearance at every speed).
+        hand_frames: side -> the link whose orientation is the wrist target's (profile ``[orientation_frames]``),
+            when it is another link than the wrist link, one joint past it (the G1's yaw link, past the pitch
+            link): it is posed too (:class:`HandChain`), so the whole hand keeps the clearance. None: the wrist
+            link alone, posed at the orientation given.
 
     Raises:
         NoTrunkError: the profile has no ``[collision]`` table, or a wrist link has no collision proxy, or no trunk link
@@ -133,6 +206,7 @@ class TrunkClearance:
         waist_carried: bool = False,
         sca: SelfCollisionAvoidance | None = None,
         fast_clearance: float | None = None,
+        hand_frames: dict[str, str] | None = None,
     ):
         if sca is None and robot.profile.collision is None:
             raise NoTrunkError(f"robot profile {robot.profile.name} has no [collision] table")
@@ -190,10 +264,19 @@ class TrunkClearance:
             bid = m.body(link).id
             b.pos, b.quat = d.xpos[bid], matrix_to_quat(d.xmat[bid].reshape(3, 3))
             add_proxy_geom(ms, link, sca.proxies[link])
+        #: side -> the hand link one joint past the wrist link, and how it sits on it (None: the wrist link alone)
+        self.chains: dict[str, HandChain | None] = {}
         for side, link in wrist_frames.items():
             b = ms.worldbody.add_body()
             b.name, b.mocap = f"hand:{side}", True
             add_proxy_geom(ms, b.name, sca.proxies[link])
+            hand = (hand_frames or {}).get(side, link)
+            chain = HandChain(robot, link, hand) if hand != link and hand in sca.proxies else None
+            if chain is not None:
+                b = ms.worldbody.add_body()
+                b.name, b.mocap = f"hand_link:{side}", True
+                add_proxy_geom(ms, b.name, sca.proxies[hand])
+            self.chains[side] = chain
         self.model = ms.compile()
         self.data = mujoco.MjData(self.model)
         self._trunk_geoms = [self.model.geom(f"polytope:{n}").id for n in self.trunk]
@@ -218,35 +301,55 @@ class TrunkClearance:
             along = (verts - centre) @ axis
             for _, g in links:
                 self._axes[g] = (centre, axis, float(along.min()), float(along.max()))
-        #: side -> (hand geom id, mocap index)
+        #: side -> (wrist link geom id, mocap index)
         self._hand = {
             s: (self.model.geom(f"polytope:hand:{s}").id, int(self.model.body(f"hand:{s}").mocapid[0]))
             for s in wrist_frames
         }
+        #: side -> (hand link geom id, mocap index), for the sides with a :class:`HandChain`
+        self._hand_link = {
+            s: (self.model.geom(f"polytope:hand_link:{s}").id, int(self.model.body(f"hand_link:{s}").mocapid[0]))
+            for s, chain in self.chains.items()
+            if chain is not None
+        }
         self._fromto = np.zeros(6)
 
-    def nearest(self, side: str, p: np.ndarray, R: np.ndarray) -> tuple[float, np.ndarray, int]:
+    def nearest(
+        self, side: str, p: np.ndarray, R: np.ndarray, forearm: np.ndarray | None = None
+    ) -> tuple[float, np.ndarray, int]:
         """The hand of ``side`` posed at p (3,) [m], R (3, 3) (base frame): its signed distance [m] to the nearest
         trunk link (capped at clearance + LOOKOUT), the unit direction (3,) along which it grows and that link's
-        geom (-1: none within the cap)."""
+        geom (-1: none within the cap). With a :class:`HandChain` on this side, ``R`` is the hand link's
+        orientation, and ``forearm`` (3,) (the elbow-to-wrist direction, any length; None: unknown) sets how the
+        wrist link sits between the forearm and the hand (:meth:`HandChain.pose`)."""
         g_hand, mocap = self._hand[side]
-        self.data.mocap_pos[mocap] = p
-        self.data.mocap_quat[mocap] = matrix_to_quat(R)
+        chain = self.chains.get(side)
+        geoms = [g_hand]
+        if chain is None:
+            self.data.mocap_pos[mocap] = p
+            self.data.mocap_quat[mocap] = matrix_to_quat(R)
+        else:
+            R_wrist, p_hand = chain.pose(p, R, forearm)
+            self.data.mocap_pos[mocap] = p
+            self.data.mocap_quat[mocap] = matrix_to_quat(R_wrist)
+            g_link, mocap_link = self._hand_link[side]
+            self.data.mocap_pos[mocap_link] = p_hand
+            self.data.mocap_quat[mocap_link] = matrix_to_quat(R)
+            geoms.append(g_link)
         mujoco.mj_kinematics(self.model, self.data)
         cap = self.clearance + LOOKOUT
         best, normal, geom = cap, np.zeros(3), -1
         xpos, rbound = self.data.geom_xpos, self.model.geom_rbound
-        hand, r_hand = xpos[g_hand], rbound[g_hand]
-        for g in self._trunk_geoms:
-            c = xpos[g] - hand
-            if math.sqrt(c @ c) - r_hand - rbound[g] >= best:  # their bounding spheres are already farther apart
-                continue
-            dist = mujoco.mj_geomDistance(self.model, self.data, g, g_hand, cap, self._fromto)
-            if dist < best:
-                best, geom = dist, g
-                normal = witness_normal(
-                    dist, self._fromto[:3], self._fromto[3:], self.data.geom_xpos[g], self.data.geom_xpos[g_hand]
-                )
+        for gh in geoms:
+            hand, r_hand = xpos[gh], rbound[gh]
+            for g in self._trunk_geoms:
+                c = xpos[g] - hand
+                if math.sqrt(c @ c) - r_hand - rbound[g] >= best:  # their bounding spheres are already farther apart
+                    continue
+                dist = mujoco.mj_geomDistance(self.model, self.data, g, gh, cap, self._fromto)
+                if dist < best:
+                    best, geom = dist, g
+                    normal = witness_normal(dist, self._fromto[:3], self._fromto[3:], xpos[g], xpos[gh])
         return float(best), normal, geom
 
     def _exit_ray(self, g: int, g_hand: int) -> np.ndarray:
@@ -262,7 +365,15 @@ class TrunkClearance:
         return forward / np.linalg.norm(forward)
 
     def _along(
-        self, side: str, p: np.ndarray, R: np.ndarray, u: np.ndarray, c: float, dist: float, n: np.ndarray
+        self,
+        side: str,
+        p: np.ndarray,
+        R: np.ndarray,
+        u: np.ndarray,
+        c: float,
+        dist: float,
+        n: np.ndarray,
+        forearm: np.ndarray | None = None,
     ) -> np.ndarray:
         """The point p + t u (3,) [m], t > 0, where the hand's distance reaches ``c`` (``dist`` [m] and its direction
         ``n`` (3,) at p): Newton steps in t (the distance grows by u.n per metre), kept within the bracket of the
@@ -274,7 +385,7 @@ class TrunkClearance:
             if not lo < t_new < hi:  # (so hi is finite here)
                 t_new = 0.5 * (lo + hi)
             t = t_new
-            dist, n, _ = self.nearest(side, p + t * u, R)
+            dist, n, _ = self.nearest(side, p + t * u, R, forearm)
             if abs(dist - c) < TOL:
                 return p + t * u
             if dist < c:
@@ -293,13 +404,21 @@ class TrunkClearance:
         x = (speed - SLOW) / (FAST - SLOW)
         return self.clearance + (self.fast_clearance - self.clearance) * x * x * (3.0 - 2.0 * x)
 
-    def __call__(self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0) -> np.ndarray:
-        """The wrist target p (3,) [m] with the hand (orientation R (3, 3)) kept ``clearance_at(speed)`` off the
-        trunk; ``p`` itself (the same object) when it already is."""
-        return self.push(side, p, R, speed)[0]
+    def __call__(
+        self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0, forearm: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The wrist target p (3,) [m] with the hand (orientation R (3, 3); ``forearm`` as :meth:`nearest`) kept
+        ``clearance_at(speed)`` off the trunk; ``p`` itself (the same object) when it already is."""
+        return self.push(side, p, R, speed, forearm=forearm)[0]
 
     def push(
-        self, side: str, p: np.ndarray, R: np.ndarray, speed: float = 0.0, prior: np.ndarray | None = None
+        self,
+        side: str,
+        p: np.ndarray,
+        R: np.ndarray,
+        speed: float = 0.0,
+        prior: np.ndarray | None = None,
+        forearm: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """:meth:`__call__`, and the exit ray (3,) it pushed along (None: not pushed). With ``prior``, the ray of
         the same hand's previous push, the new ray turns from it by :data:`EXIT_TURN` at most."""
@@ -307,14 +426,14 @@ class TrunkClearance:
         g_hand = self._hand[side][0]
         c = self.clearance_at(speed)
         for _ in range(ITERATIONS):
-            dist, n, g = self.nearest(side, out, R)
+            dist, n, g = self.nearest(side, out, R, forearm)
             if dist >= c - TOL:
                 break
             u = self._exit_ray(g, g_hand)
             if prior is not None:  # a hand past the link's axis keeps leaving the way it did
                 u = _turn_towards(prior, u, EXIT_TURN)
             used = u if used is None else used
-            out = self._along(side, out, R, u, c, dist, n)
+            out = self._along(side, out, R, u, c, dist, n, forearm)
         return out, used
 
 

@@ -27,8 +27,9 @@ def _stream(robot, lefts, R):
 
 def test_a_target_inside_the_torso_is_not_reachable_and_one_just_outside_is(robot14):
     trunk = trunk_for(robot14)
-    R = robot14.frame_poses(robot14.q_rest, names=("left_wrist",))["left_wrist"][1]
-    inside, outside = torso_front(trunk, R, 0.03)[0], torso_front(trunk, R, -0.003)[0]  # 3 cm in, 3 mm out
+    rest = robot14.frame_poses(robot14.q_rest, names=("left_wrist", "left_elbow"))
+    R, elbow = rest["left_wrist"][1], rest["left_elbow"][0]  # the stream's elbow target: the rest pose's
+    inside, outside = (torso_front(trunk, R, depth, elbow)[0] for depth in (0.03, -0.003))  # 3 cm in, 3 mm out
     rep = check_targets(robot14, _stream(robot14, [inside, outside], R))
     assert (rep.wrist_res["left"] <= IK_TOL).all()  # the IK alone reaches both
     assert rep.body_dist["left"][0] == pytest.approx(-0.03, abs=1e-3)

@@ -80,9 +80,14 @@ def targets_without_and_with(bvh_clips, name: str, workspace, robot14, option: s
     }
 
 
-def torso_front(trunk, R: np.ndarray, depth: float) -> tuple[np.ndarray, np.ndarray]:
+def torso_front(trunk, R: np.ndarray, depth: float, elbow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A left wrist target (3,) [m] straight in front of the torso's axis at belly height, whose hand lies
-    ``depth`` [m] inside the torso's front (negative: outside), and the torso's outward normal there (3,)."""
+    ``depth`` [m] inside the torso's front (negative: outside), and the torso's outward normal there (3,).
+    ``elbow`` (3,): the elbow target, whose forearm poses a hand chain (``TrunkClearance.nearest``)."""
+
+    def nearest(p):
+        return trunk.nearest("left", p, R, None if elbow is None else p - elbow)
+
     g = trunk.model.geom("polytope:torso_link").id
     _, axis, _, _ = trunk._axes[g]
     mujoco.mj_kinematics(trunk.model, trunk.data)
@@ -90,11 +95,11 @@ def torso_front(trunk, R: np.ndarray, depth: float) -> tuple[np.ndarray, np.ndar
     normal = np.array([1.0, 0.0, 0.0]) - axis[0] * axis
     normal /= np.linalg.norm(normal)
     far = centre + 0.4 * normal  # hand clear of everything
-    d_far = trunk.nearest("left", far, R)[0]
+    d_far = nearest(far)[0]
     assert d_far > trunk.clearance  # (the lookout caps it; walk in until it is measured)
     p = far.copy()
     for _ in range(50):
-        d, _, _ = trunk.nearest("left", p, R)
+        d, _, _ = nearest(p)
         if d < trunk.clearance:
             break
         p = p - 0.01 * normal

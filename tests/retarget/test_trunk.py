@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pinocchio as pin
 import pytest
 from conftest import targets_without_and_with, torso_front
 
-from services.retarget.trunk import FAST, FAST_CLEARANCE, SLOW, HandSpeed, TrunkClearance
+from services.evaluation.runner import clip_targets
+from services.ingest import load_clip
+from services.retarget.retargeter import RetargetConfig, Retargeter
+from services.retarget.trunk import FAST, FAST_CLEARANCE, SLOW, HandChain, HandSpeed, TrunkClearance
 from shared.rotations import quat_to_matrix
 
 #: Distance tolerance [m] of the pushed hand against the clearance (the Newton steps stop within 0.2 mm).
@@ -17,6 +21,17 @@ TOL = 5e-4
 @pytest.fixture(scope="module")
 def trunk(robot14):
     return TrunkClearance(robot14, {s: robot14.profile.frames[f"{s}_wrist"] for s in ("left", "right")})
+
+
+@pytest.fixture(scope="module")
+def hand_trunk(robot14):
+    """As the retargeter builds it: the wrist link and the hand link past it (the G1's pitch and yaw links)."""
+    prof = robot14.profile
+    return TrunkClearance(
+        robot14,
+        {s: prof.frames[f"{s}_wrist"] for s in ("left", "right")},
+        hand_frames={s: prof.orientation_frame(f"{s}_wrist") for s in ("left", "right")},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -79,18 +94,57 @@ def test_a_target_in_front_of_the_chest_leaves_forward_and_slides_across_it(trun
     assert np.linalg.norm(np.diff(outs, axis=0), axis=1).max() < 0.004
 
 
-def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, trunk):
+def test_the_hand_chain_poses_the_wrist_link_from_the_forearm(robot14):
+    """The wrist target gives the wrist (pitch) link's origin and the hand (yaw) link's orientation; with the forearm's
+    roll axis the pitch link's orientation and the hand link's origin follow exactly (the sine of the pitch is the
+    forearm's share along the yaw axis). Without the forearm the joint is taken at 0: off by the yaw angle."""
+    m, d = robot14.model, robot14.model.createData()
+    ids = [m.getFrameId(f"left_{n}") for n in ("wrist_roll_link", "wrist_pitch_link", "wrist_yaw_link")]
+    chain = HandChain(robot14, "left_wrist_pitch_link", "left_wrist_yaw_link")
+    rng = np.random.default_rng(0)
+    guess = []
+    for _ in range(50):
+        q = rng.uniform(robot14.lower, robot14.upper)
+        pin.framesForwardKinematics(m, d, q)
+        roll, wrist, hand = (d.oMf[i] for i in ids)
+        R_wrist, p_hand = chain.pose(wrist.translation, hand.rotation, roll.rotation[:, 0])
+        assert np.allclose(R_wrist, wrist.rotation, atol=1e-9) and np.allclose(p_hand, hand.translation, atol=1e-9)
+        guess.append(np.linalg.norm(chain.pose(wrist.translation, hand.rotation, None)[1] - hand.translation))
+    assert np.median(guess) > 0.02  # the yaw angle's turn of the 4.6 cm lever
+
+
+def test_a_hand_turned_into_the_torso_is_pushed_out_though_its_wrist_link_is_clear(trunk, hand_trunk, hand_down):
+    """The forearm and hand pointing straight at the belly, the wrist link 5 mm beyond the clearance: the wrist link
+    alone is clear (the target stays), the hand link 4.6 cm further in is not, and the hand chain pushes the target
+    out along the front's normal until the whole hand keeps the clearance."""
+    p0, normal = torso_front(trunk, hand_down, depth=-0.05)
+    x = -normal  # forearm, wrist link and hand all pointing into the torso (every wrist joint at 0)
+    z = np.array([0.0, 0.0, 1.0]) - x[2] * x
+    z /= np.linalg.norm(z)
+    R = np.column_stack([x, np.cross(z, x), z])
+    p = p0 + 0.15 * normal  # everything clear
+    while trunk.nearest("left", p, R)[0] > trunk.clearance + 0.005:  # walk in: the wrist link 5 mm beyond it
+        p = p - 0.001 * normal
+    assert trunk("left", p, R) is p
+    assert hand_trunk.nearest("left", p, R, x)[0] < trunk.clearance - 0.01  # measured: 1.6 cm nearer
+    out = hand_trunk("left", p, R, forearm=x)
+    assert abs(hand_trunk.nearest("left", out, R, x)[0] - hand_trunk.clearance) < TOL
+    move = out - p
+    assert np.linalg.norm(move) > 0.01 and move @ normal / np.linalg.norm(move) > 0.99
+
+
+def test_real_clip_hands_stay_off_the_trunk(bvh_clips, robot14, workspace, hand_trunk):
     """call_normal_001: the operator's left hand rests on the belly, and its plain wrist targets put the robot
     hand inside the trunk (at the waist's rest); with trunk_clearance every published hand keeps the clearance,
     the targets move continuously, and the velocities are differences of the published positions."""
     out = targets_without_and_with(bvh_clips, "call_normal_001", workspace, robot14, "trunk_clearance")
 
+    trunk = hand_trunk
+
     def clearance(targets, side):
+        wrists, elbows = ([tt.targets[f"{side}_{n}"] for tt in targets] for n in ("wrist", "elbow"))
         return np.array(
-            [
-                trunk.nearest(side, tt.targets[f"{side}_wrist"].p, quat_to_matrix(tt.targets[f"{side}_wrist"].q))[0]
-                for tt in targets
-            ]
+            [trunk.nearest(side, w.p, quat_to_matrix(w.q), np.subtract(w.p, e.p))[0] for w, e in zip(wrists, elbows)]
         )
 
     assert clearance(out[False], "left").min() < 0.0
@@ -154,10 +208,6 @@ def test_published_velocities_are_those_of_the_pushed_path(bvh_clips, robot14, w
     """call_normal_001 with the push (and no velocity low-pass): each published wrist velocity is the finite
     difference of the published (pushed) positions, not of the operator's plain ones, so the solver's feed-forward
     follows the path it is asked to track."""
-    from services.evaluation.runner import clip_targets
-    from services.ingest import load_clip
-    from services.retarget.retargeter import RetargetConfig, Retargeter
-
     clip = load_clip(next(p for p in bvh_clips if "call_normal_001" in p.name))
     cfg = RetargetConfig(trunk_clearance=True, velocity_tau=0.0)
     out = clip_targets(clip, Retargeter(cfg, workspace=workspace, robot=robot14))
@@ -190,3 +240,21 @@ def test_a_target_passing_the_torso_axis_turns_round_it_instead_of_jumping(trunk
     steps = [np.linalg.norm(np.diff(np.array(t), axis=0), axis=1).max() for t in (alone, chained)]
     assert steps[0] > 0.10 and steps[1] < 0.06, steps
     assert min(trunk.nearest("left", o, hand_down)[0] for o in chained) > trunk.clearance - TOL
+
+
+def test_the_status_counts_the_frames_pushed_and_no_others(bvh_clips, robot14, workspace):
+    """``trunk_cleared_<side>`` is the number of frames whose wrist target the push moved (until session 25 it counted
+    every frame with a valid wrist: the check compared with a fresh view of the row, never the object pushed)."""
+    clip = load_clip(next(p for p in bvh_clips if "call_normal_001" in p.name))
+    rt = {
+        on: Retargeter(RetargetConfig(trunk_clearance=on), workspace=workspace, robot=robot14) for on in (False, True)
+    }
+    out = {on: clip_targets(clip, r) for on, r in rt.items()}
+    for side in ("left", "right"):
+        moved = [
+            not np.array_equal(a.targets[f"{side}_wrist"].p, b.targets[f"{side}_wrist"].p)
+            for a, b in zip(out[False], out[True], strict=True)
+        ]
+        assert 0 < sum(moved) < len(moved)
+        assert rt[True].counts[f"trunk_cleared_{side}"] == sum(moved)
+        assert rt[False].counts[f"trunk_cleared_{side}"] == 0
