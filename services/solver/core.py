@@ -963,7 +963,7 @@ class SolverCore:
                 free (:data:`HOLD_FREE`), else at a bound that is its speed cap (:data:`HOLD_SPEED`), its braking
                 bound within braking distance of the position stop it moves to (:data:`HOLD_STOP`), or otherwise
                 its acceleration band (:data:`HOLD_ACCELERATION`; also the lead window around measured joints,
-                ``max_command_lead``, which ``mimic eval`` never has).
+                ``max_command_lead``, which ``mimic eval`` has with the sim only).
             collision: (n,) bool, the joints that a self-collision damper row the raw velocity sits on acts on.
         """
         n = self.n
