@@ -37,6 +37,7 @@ trunk by the full clearance is one the arm no longer reaches (retarget README).
 
 from __future__ import annotations
 
+import logging
 import math
 
 import mujoco
@@ -46,6 +47,8 @@ import pinocchio as pin
 from services.solver.collision import SelfCollisionAvoidance, add_proxy_geom, witness_normal
 from shared.robot.pinocchio_model import RobotModel
 from shared.rotations import cross3, matrix_to_quat
+
+log = logging.getLogger(__name__)
 
 #: Clearance [m] beyond the collision safety distance: a target exactly at the safety distance would hold the
 #: solver's damper at its stop.
@@ -271,7 +274,12 @@ class TrunkClearance:
             b.name, b.mocap = f"hand:{side}", True
             add_proxy_geom(ms, b.name, sca.proxies[link])
             hand = (hand_frames or {}).get(side, link)
-            chain = HandChain(robot, link, hand) if hand != link and hand in sca.proxies else None
+            chain = None
+            if hand != link and hand in sca.proxies:
+                try:
+                    chain = HandChain(robot, link, hand)
+                except ValueError as exc:  # another robot's wrist: the wrist link alone, as before
+                    log.warning("trunk clearance poses the %s wrist link alone: %s", side, exc)
             if chain is not None:
                 b = ms.worldbody.add_body()
                 b.name, b.mocap = f"hand_link:{side}", True

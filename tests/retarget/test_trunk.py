@@ -258,3 +258,15 @@ def test_the_status_counts_the_frames_pushed_and_no_others(bvh_clips, robot14, w
         assert 0 < sum(moved) < len(moved)
         assert rt[True].counts[f"trunk_cleared_{side}"] == sum(moved)
         assert rt[False].counts[f"trunk_cleared_{side}"] == 0
+
+
+def test_a_hand_link_more_than_one_joint_past_the_wrist_link_leaves_the_wrist_link_alone(robot14, caplog):
+    """Another robot's wrist: a hand frame two joints past the wrist link is refused with a one-line reason, and the
+    push poses the wrist link alone (as before session 25) instead of failing."""
+    with pytest.raises(ValueError, match="not one revolute joint past"):
+        HandChain(robot14, "left_wrist_roll_link", "left_wrist_yaw_link")
+    frames = {"left": "left_wrist_roll_link"}
+    with caplog.at_level("WARNING"):
+        trunk = TrunkClearance(robot14, frames, hand_frames={"left": "left_wrist_yaw_link"})
+    assert trunk.chains == {"left": None}
+    assert "wrist link alone" in caplog.text
