@@ -232,14 +232,13 @@ def check_targets(
             res, q = iks[s].solve(w.p, q0=warm[s])
             wres[s][k] = res
             warm[s] = q
+            e = tt.targets.get(f"{s}_elbow")
             if trunk is not None:
                 pose = robot.frame_poses(q, names=(f"{s}_wrist", f"{s}_elbow"))
-                e = tt.targets.get(f"{s}_elbow")
                 elbow = np.asarray(e.p) if e is not None and e.valid else pose[f"{s}_elbow"][0]
                 # the hand as the target turns it, else as the IK left it
                 R = quat_to_matrix(w.q) if w.use_rotation else pose[f"{s}_wrist"][1]
                 bdist[s][k] = trunk.nearest(s, w.p, R, np.asarray(w.p) - elbow)[0]
-            e = tt.targets.get(f"{s}_elbow")
             if pair and e is not None and e.valid:
                 res, q = iks[s].solve(w.p, e.p, q0=warm_pair[s] if warm_pair[s] is not None else warm[s], tol=PAIR_TOL)
                 pres[s][k] = res

@@ -742,17 +742,23 @@ class Retargeter(FrameIntake):
             if not valid[ie]:
                 continue
             box = None if mapped is None else (mapped[0][ie], mapped[1][ie])
-            for k in range(TRUNK_PASSES):
-                self._placed.pop(side, None)
-                P[ie] = self._position(TARGET_NAMES[ie], frame, H[ie], box, {wrist_of(side): P[iw]})
-                if k == TRUNK_PASSES - 1:
-                    break
+            for _ in range(TRUNK_PASSES - 1):
+                self._place_again(side, frame, P, H, box)
                 # the elbow placed for the pushed wrist turns the forearm, and the hand on it: clear it again
                 wrist = P[iw]
                 again, _ = self.trunk.push(side, wrist, R[iw], speed, ray, wrist - P[ie])
                 if again is wrist:
                     break
                 P[iw] = again
+            else:  # the last push moved the wrist: its elbow follows
+                self._place_again(side, frame, P, H, box)
+
+    def _place_again(self, side: str, frame: HumanFrame, P: np.ndarray, H: np.ndarray, box) -> None:
+        """The elbow row of ``P`` (4, 3) [m] placed again for the wrist row as it now is (the swivel elbow hangs at the
+        forearm length from the wrist), in place; ``box``: the elbow's box-map bounds (None: none)."""
+        iw, ie = self._arm_rows[side]
+        self._placed.pop(side, None)
+        P[ie] = self._position(TARGET_NAMES[ie], frame, H[ie], box, {wrist_of(side): P[iw]})
 
     def _targets(self, frame: HumanFrame, dt: float | None) -> dict[str, Target]:
         """All targets of one frame (wrists first: the swivel elbows need them).

@@ -333,12 +333,11 @@ class TrunkClearance:
         g_hand, mocap = self._hand[side]
         chain = self.chains.get(side)
         geoms = [g_hand]
+        self.data.mocap_pos[mocap] = p
         if chain is None:
-            self.data.mocap_pos[mocap] = p
             self.data.mocap_quat[mocap] = matrix_to_quat(R)
         else:
             R_wrist, p_hand = chain.pose(p, R, forearm)
-            self.data.mocap_pos[mocap] = p
             self.data.mocap_quat[mocap] = matrix_to_quat(R_wrist)
             g_link, mocap_link = self._hand_link[side]
             self.data.mocap_pos[mocap_link] = p_hand
