@@ -30,7 +30,7 @@ from services.evaluation.metrics import (
 )
 from services.evaluation.mink_peer import PEERS, MinkMissingError, require_mink
 from services.evaluation.reachability import IK_TOL, PAIR_TOL, check_targets
-from services.evaluation.runner import REFERENCE_ALGO, _arms_model, load_and_retarget, run_algorithm
+from services.evaluation.runner import REFERENCE_ALGO, SETTLE, _arms_model, load_and_retarget, run_algorithm
 from services.ingest.demo_motion import DEMO_MOTIONS, demo_clip_paths
 from services.ingest.errors import ClipError
 from services.retarget.mapping import ELBOW_PLACEMENTS, MODES, ORIENTATION_REFERENCES
@@ -100,6 +100,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=_speed_factor,
         default=1.0,
         help="held-out motion: play each clip this many times as fast (e.g. 1.25; the frames are the same)",
+    )
+    p.add_argument(
+        "--settle",
+        type=_settle_time,
+        default=SETTLE,
+        metavar="S",
+        help=f"seconds the first frame is held, the robot moving from its rest pose to it, before the clip plays and "
+        f"is scored (default {SETTLE}); a run at another settle (0.51) shows how much of a difference between two "
+        "runs is the strict HQP's path dependence (evaluation README, eval-diff)",
     )
     p.add_argument("--qp", default="daqp", choices=("piqp", "daqp"), help="QP backend")
     p.add_argument("--rate", type=float, default=500.0, help="control rate [Hz]")
@@ -235,24 +244,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", default=None, help="folder for Fig. 9-style PNGs and report.md")
 
 
-def _positive(expected: str, must_be: str):
-    """An argparse type: a finite number > 0, else a one-line usage error naming ``expected`` / ``must_be``."""
+def _positive(expected: str, must_be: str, zero: bool = False):
+    """An argparse type: a finite number > 0 (>= 0 with ``zero``), else a one-line usage error naming ``expected`` /
+    ``must_be``."""
 
     def parse(text: str) -> float:
         try:
             v = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
-        if not (math.isfinite(v) and v > 0):
+        if not (math.isfinite(v) and (v > 0 or (zero and v == 0))):
             raise argparse.ArgumentTypeError(f"must be {must_be}, got {text!r}")
         return v
 
     return parse
 
 
-#: ``--speed``: a play-back factor; ``--max-joint-velocity``: a speed [rad/s].
+#: ``--speed``: a play-back factor; ``--max-joint-velocity``: a speed [rad/s]; ``--settle``: a time [s].
 _speed_factor = _positive("a speed factor such as 1.25", "a finite factor > 0")
 _speed_cap = _positive("a speed in rad/s", "a finite speed > 0 [rad/s]")
+_settle_time = _positive("a time in seconds such as 0.5", "a finite time >= 0 [s]", zero=True)
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
@@ -322,6 +333,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                     qp=args.qp,
                     rate=args.rate,
                     sim=sim,
+                    settle=getattr(args, "settle", SETTLE),
                     solver=extra,
                     wqp_weights=wqp_weights,
                     wrist_only=wo,
@@ -486,6 +498,7 @@ def _settings_json(
         "wrist_only": getattr(args, "wrist_only", False),
         "posture_policy": getattr(args, "posture_policy", None),
         "sim": not args.no_sim,
+        "settle_s": getattr(args, "settle", SETTLE),
         "reachable_tol": REACHABLE_TOL,
         "error_reference": "retargeted target, extrapolated with its velocity, at the instant each "
         "tick's command is for (t + dt)",

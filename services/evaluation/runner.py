@@ -43,6 +43,8 @@ from shared.targets import ELBOWS, TARGET_NAMES, WRISTS, side_of
 
 log = logging.getLogger("mimic.eval")
 REFERENCE_ALGO = "hqp-nullspace"
+#: Seconds the first frame is held before a clip plays (``run_algorithm``'s ``settle``; ``mimic eval --settle``).
+SETTLE = 0.5
 #: (3,) "no value" for a tick's missing position (read-only: shared by every row it fills).
 _NAN3 = np.full(3, np.nan)
 _NAN3.flags.writeable = False
@@ -126,7 +128,7 @@ def run_algorithm(
     qp: str = "piqp",
     rate: float = 500.0,
     sim: bool = False,
-    settle: float = 0.5,
+    settle: float = SETTLE,
     solver: dict | None = None,
     wqp_weights: tuple[float, ...] | None = None,
     collisions: bool = True,

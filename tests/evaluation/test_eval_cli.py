@@ -181,3 +181,18 @@ def test_fidelity_goals_and_the_report(short_clip, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         mimic_main(["eval", str(short_clip), "--goals", str(bars), "--json", str(tmp_path / "x.json")])
     assert str(exc.value).startswith("mimic eval: goals file") and "unknown goals ['wrist_mean']" in str(exc.value)
+
+
+def test_settle_holds_the_first_frame_before_the_clip_is_scored(short_clip, tmp_path, capsys):
+    """--settle S holds the first frame S seconds before the clip plays and is scored (recorded in the JSON): with
+    none the robot leaves its rest pose as the clip starts and the move to the operator's first pose is scored, with
+    the default 0.5 s it is not. A time that is not one is a one-line usage error."""
+    shipped = _eval(short_clip, tmp_path)
+    cold = _eval(short_clip, tmp_path, "--settle", "0")
+    capsys.readouterr()
+    assert shipped["settings"]["settle_s"] == 0.5 and cold["settings"]["settle_s"] == 0.0
+    h = {k: r["clips"][0]["algos"]["hqp-nullspace"] for k, r in {"shipped": shipped, "cold": cold}.items()}
+    assert abs(h["cold"]["ticks"] - h["shipped"]["ticks"]) <= 1  # the same clip scored, from its first frame
+    w = {k: m["wrist_err_cm"]["max"] for k, m in h.items()}
+    assert w["cold"] > 5 * w["shipped"], w  # measured 10.26 against 0.48 cm
+    _usage_errors(short_clip, tmp_path, capsys, "--settle", ("-1", "nan", "soon"))
