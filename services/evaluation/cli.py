@@ -296,6 +296,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
     skeleton_map = getattr(args, "skeleton_map", None)
     # held-out variants of every clip (ingest.variants): the same for each clip and algorithm
     variant = {"mirror": getattr(args, "mirror", False), "speed": getattr(args, "speed", 1.0)}
+    settle = getattr(args, "settle", SETTLE)
     paths = [*args.clips, *demo_clip_paths(demos)]
     bar = tqdm(total=len(paths) * len(runs), desc="eval", unit="run", file=sys.stderr)
     skipped: list[dict] = []
@@ -333,7 +334,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, dict]:
                     qp=args.qp,
                     rate=args.rate,
                     sim=sim,
-                    settle=getattr(args, "settle", SETTLE),
+                    settle=settle,
                     solver=extra,
                     wqp_weights=wqp_weights,
                     wrist_only=wo,

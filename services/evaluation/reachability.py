@@ -224,6 +224,8 @@ def check_targets(
     last = {s: None for s in SIDES}  # (stamp, q) of the previous pair solution
     warm = {s: None for s in SIDES}
     warm_pair = {s: None for s in SIDES}
+    # shoulder and elbow joints only: the wrist joints are free in the pair IK
+    moved = {s: [i for i in iks[s].arm if "wrist" not in robot.joint_names[i]] for s in SIDES}
     for k, tt in enumerate(targets):
         for s in SIDES:
             w = tt.targets.get(f"{s}_wrist")
@@ -234,8 +236,11 @@ def check_targets(
             warm[s] = q
             e = tt.targets.get(f"{s}_elbow")
             if trunk is not None:
-                pose = robot.frame_poses(q, names=(f"{s}_wrist", f"{s}_elbow"))
-                elbow = np.asarray(e.p) if e is not None and e.valid else pose[f"{s}_elbow"][0]
+                elbow_ok = e is not None and e.valid
+                # the IK posture's frames only where the targets lack them (most frames need none)
+                need = ([] if w.use_rotation else [f"{s}_wrist"]) + ([] if elbow_ok else [f"{s}_elbow"])
+                pose = robot.frame_poses(q, names=tuple(need)) if need else {}
+                elbow = np.asarray(e.p) if elbow_ok else pose[f"{s}_elbow"][0]
                 # the hand as the target turns it, else as the IK left it
                 R = quat_to_matrix(w.q) if w.use_rotation else pose[f"{s}_wrist"][1]
                 bdist[s][k] = trunk.nearest(s, w.p, R, np.asarray(w.p) - elbow)[0]
@@ -243,10 +248,8 @@ def check_targets(
                 res, q = iks[s].solve(w.p, e.p, q0=warm_pair[s] if warm_pair[s] is not None else warm[s], tol=PAIR_TOL)
                 pres[s][k] = res
                 warm_pair[s] = q
-                # shoulder and elbow joints only: the wrist joints are free in this IK
-                moved = [i for i in iks[s].arm if "wrist" not in robot.joint_names[i]]
                 if last[s] is not None and tt.hdr.stamp > last[s][0]:
-                    speed[s][k] = np.abs(q[moved] - last[s][1][moved]).max() / (tt.hdr.stamp - last[s][0])
+                    speed[s][k] = np.abs(q[moved[s]] - last[s][1][moved[s]]).max() / (tt.hdr.stamp - last[s][0])
                 last[s] = (tt.hdr.stamp, q.copy())
     vmax = float(robot.vmax.min())
     d_s = robot.profile.collision.safety_distance if trunk is not None else 0.0
